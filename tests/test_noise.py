@@ -1,0 +1,243 @@
+"""Noise models, noise estimation, cycle metrics, the noise CLI and a tiny bench run."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from uavsim.errors import UserError
+from uavsim.noise import analysis as A
+from uavsim.noise.estimate import estimate_noise, recommend, tau_obs_max
+from uavsim.noise.models import (
+    NOISE_KINDS,
+    ColouredNoise,
+    Outliers,
+    PaperNoise,
+    PerEpisode,
+    Quantization,
+    WhiteNoise,
+    make_noise,
+    pixel_step,
+)
+
+RATE = 200.0
+
+
+def apply(eff, x, n=None, seed=0):
+    """x: (T, n) clean signal -> noisy (T, n)."""
+    x = np.asarray(x, dtype=float)
+    eff.reset(x.shape[1], RATE, np.random.default_rng(seed))
+    return np.stack([eff(x[k], k) for k in range(x.shape[0])])
+
+
+# --- models ----------------------------------------------------------------
+
+
+def test_white_noise_std_and_reproducible():
+    x = np.zeros((20000, 2))
+    y = apply(WhiteNoise(std=np.array([0.1, 0.2])), x)
+    np.testing.assert_allclose(y.std(axis=0), [0.1, 0.2], rtol=0.03)
+    np.testing.assert_array_equal(y, apply(WhiteNoise(std=np.array([0.1, 0.2])), x))
+
+
+def test_quantization_rounds_to_step_and_pixel_step():
+    x = np.array([[0.014, -0.026], [0.0049, 0.051]])
+    y = apply(Quantization(step=0.01), x)
+    np.testing.assert_allclose(y, [[0.01, -0.03], [0.0, 0.05]])
+    assert pixel_step(3.0, 600.0) == pytest.approx(0.005)
+    with pytest.raises(UserError):
+        pixel_step(0.0, 600.0)
+
+
+def test_paper_noise_amplitude_and_frequency():
+    y = apply(PaperNoise(a_n=0.1, freq_hz=40.0, amp_var=0.0, freq_var=0.0), np.zeros((4000, 1)))[:, 0]
+    assert np.max(np.abs(y)) <= 0.1 + 1e-12
+    assert np.max(np.abs(y)) > 0.095
+    # 40 Hz: 80 sign changes per second
+    crossings = np.sum(np.diff(np.sign(y)) != 0) / 20.0
+    assert crossings == pytest.approx(80, rel=0.03)
+    ym = apply(PaperNoise(a_n=0.1, amp_var=0.2, freq_var=0.2), np.zeros((4000, 1)))[:, 0]
+    assert np.max(np.abs(ym)) <= 0.12 + 1e-12
+
+
+def test_coloured_noise_std_and_band_limit():
+    y = apply(ColouredNoise(std=0.05, high_hz=10.0), np.zeros((40000, 1)))[:, 0]
+    assert y.std() == pytest.approx(0.05, rel=0.1)
+    # low-passed: the sample-to-sample difference is much smaller than for white noise
+    assert np.std(np.diff(y)) < 0.5 * 0.05 * math.sqrt(2)
+
+
+def test_outliers_rate_and_size():
+    y = apply(Outliers(amplitude=0.3, prob=0.02), np.zeros((50000, 1)))[:, 0]
+    hits = y != 0
+    assert hits.mean() == pytest.approx(0.02, rel=0.1)
+    assert np.all(np.abs(y[hits]) == 0.3)
+
+
+def test_make_noise_levels_and_amplitude_convention():
+    a0 = np.array([1.0, 2.0])
+    assert make_noise("white", 0.0, a0) is None
+    assert np.allclose(make_noise("white", 0.1, a0).std, [0.05, 0.1])        # amplitude = 2 sigma
+    assert np.allclose(make_noise("coloured", 0.2, a0).std, [0.1, 0.2])
+    assert np.allclose(make_noise("quantization", 0.1, a0).step, [0.1, 0.2])  # amplitude = step
+    assert np.allclose(make_noise("paper", 0.05, a0).a_n, [0.05, 0.1])
+    assert np.allclose(make_noise("outliers", 0.2, 1.0).amplitude, 0.2)
+    assert set(NOISE_KINDS) == {"paper", "white", "quantization", "coloured", "outliers"}
+    with pytest.raises(UserError, match="unknown noise"):
+        make_noise("pink", 0.1, 1.0)
+    with pytest.raises(UserError):
+        make_noise("white", -0.1, 1.0)
+    with pytest.raises(UserError):
+        WhiteNoise(std=-1.0)
+    with pytest.raises(UserError):
+        Quantization(step=0.0)
+    with pytest.raises(UserError):
+        Outliers(amplitude=0.1, prob=2.0)
+    eff = WhiteNoise(std=np.array([0.1, 0.2, 0.3]))
+    with pytest.raises(UserError, match="episodes"):
+        eff.reset(2, RATE, np.random.default_rng(0))
+
+
+def test_per_episode_groups():
+    eff = PerEpisode(groups=[(np.array([1]), Quantization(step=1.0)), (np.array([0]), None)])
+    eff.reset(3, RATE, np.random.default_rng(0))
+    np.testing.assert_allclose(eff(np.array([0.3, 0.3, 0.3]), 0), [0.3, 0.0, 0.3])
+
+
+# --- estimation -------------------------------------------------------------
+
+
+def drift(T, amp=0.05):
+    t = np.arange(T) / RATE
+    return amp * np.sin(2 * np.pi * 0.2 * t + 0.3)
+
+
+def test_estimate_sinusoidal_noise_on_drifting_hover():
+    T = 4000
+    noise = 0.01 * np.sin(2 * np.pi * 40.0 * np.arange(T) / RATE + 0.4)
+    est = estimate_noise(drift(T) + noise, RATE)
+    assert est.T_n == pytest.approx(0.025, rel=0.05)
+    assert 0.008 <= est.a_n_mean <= 0.0102
+    assert est.sigma == pytest.approx(0.01 / math.sqrt(2), rel=0.05)
+    assert est.tau_obs == pytest.approx(0.025)  # a multiple of 5 ms, >= T_n
+
+
+def test_estimate_white_noise_sigma_and_no_noise():
+    rng = np.random.default_rng(1)
+    est = estimate_noise(drift(6000) + 0.004 * rng.standard_normal(6000), RATE)
+    assert est.sigma == pytest.approx(0.004, rel=0.1)
+    assert 0.005 < est.T_n < 0.03
+    clean = estimate_noise(np.full(2000, 1.5), RATE)
+    assert clean.a_n == 0.0 and math.isnan(clean.T_n) and clean.notes
+
+
+def test_recommend_respects_beta_min_and_sampling():
+    est = estimate_noise(drift(4000) + 0.01 * np.sin(2 * np.pi * 40 * np.arange(4000) / RATE), RATE)
+    # beta = -0.73, T0 = 1 s: tau <= asin(0.27) / 2 pi = 0.0435 s -> 8 samples = 0.040 s
+    assert tau_obs_max(-0.73, 1.0, RATE) == pytest.approx(0.040)
+    tau, a_n = recommend(est, -0.73, 1.0)
+    assert tau == pytest.approx(0.040) and tau >= est.T_n and a_n == est.a_n
+    assert -1 + math.sin(2 * math.pi * tau / 1.0) <= -0.73
+    # a short cycle cannot host tau_obs >= T_n: capped with a note
+    tau, _ = recommend(est, -0.73, 0.3)
+    assert tau == pytest.approx(0.010) and any("capped" in s for s in est.notes)
+    assert recommend(est, -0.73, None)[0] == pytest.approx(est.tau_obs)
+    with pytest.raises(UserError):
+        recommend(est, -1.0, 1.0)
+    with pytest.raises(UserError, match="too short"):
+        estimate_noise(np.zeros(10), RATE)
+
+
+# --- cycle metrics ------------------------------------------------------------
+
+
+def square_and_sine(T=2000, period_s=0.5, amp=0.3, phase=0.0):
+    t = np.arange(T) / RATE
+    y = amp * np.sin(2 * np.pi * t / period_s + phase)
+    u = np.where(np.sin(2 * np.pi * t / period_s + phase - 1.0) >= 0, 1.0, -1.0) + 0.2
+    return t, y, u
+
+
+def test_cycle_stats_exact_on_synthetic_cycle():
+    t, y, u = square_and_sine()
+    period, amp, n = A.cycle_stats(t, y, u)
+    assert period == pytest.approx(0.5)
+    assert amp == pytest.approx(0.3, rel=1e-3)
+    assert n == 13  # 10 s, first 3 s skipped: edges at t>=3 s, 14 edges -> 13 cycles
+    assert math.isnan(A.cycle_stats(t, y, np.ones_like(u)).period)
+
+
+def test_false_switch_rate_counts_chatter():
+    t, y, u = square_and_sine()
+    assert A.false_switch_rate(t, u, 0.5) == 0.0
+    u2 = u.copy()
+    # chatter: a 2-sample blip in 7 cycles of the steady state -> 2 short intervals each
+    for c in range(7):
+        i = int((4 + c * 0.5 + 0.1) * RATE)
+        u2[i:i + 2] = -u2[i]
+    rate = A.false_switch_rate(t, u2, 0.5)
+    assert rate == pytest.approx(14 / (7.0 / 0.5), rel=0.02)
+    assert A.sustained(t, y, u, a_ref=0.3)
+    assert not A.sustained(t, 0.01 * y, u, a_ref=0.3)
+
+
+# --- CLI ------------------------------------------------------------------------
+
+
+def write_demo_session(tmp_path, kind="mrft"):
+    from uavsim.formats.session import Run, RunData, RunSpec, Session, write_session
+    from uavsim.lumped.reference import LumpedDiscrete
+    from uavsim.control.relay import NPMRFT
+
+    rng = np.random.default_rng(0)
+    sim = LumpedDiscrete.inner(2.0, 0.2, 1.0, 0.04, 1 / RATE, 1)  # a ~0.5 s cycle
+    relay = NPMRFT(-0.73, 1.0, 0.02, 0.003, RATE, 1)
+    y = sim.reset()
+    T = int(12 * RATE)
+    ys, us = np.empty(T), np.empty(T)
+    for k in range(T):
+        ym = y + 0.002 * rng.standard_normal(1)
+        us[k] = relay(-ym)[0] if kind == "mrft" else 0.0
+        ys[k] = ym[0]
+        y = sim.step(us[k:k + 1]) if kind == "mrft" else y
+    t = np.arange(T) / RATE
+    spec = RunSpec(file="run.csv", kind="np-mrft", beta=-0.73, h=1.0, tau_obs=0.02, a_n=0.003)
+    s = Session(loop="altitude", control_rate_hz=RATE, runs=[Run(spec, RunData(t, np.zeros(T), ys, us))])
+    write_session(s, tmp_path / "s")
+    return tmp_path / "s"
+
+
+def test_noise_cli_json(tmp_path, monkeypatch, capsys):
+    from uavsim.cli import main as cli_main
+
+    folder = write_demo_session(tmp_path)
+    monkeypatch.setattr(cli_main, "_COMMAND_MODULES", ["uavsim.cli.noise_cmd"])
+    assert cli_main.main(["noise", str(folder), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["run"] == "run.csv" and out["period"] > 0
+    assert 0.001 < out["sigma"] < 0.004
+    assert out["tau_obs"] >= 1 / RATE and out["beta_min"] <= -0.73
+    assert cli_main.main(["noise", str(folder)]) == 0
+    assert "tau_obs" in capsys.readouterr().out
+    assert cli_main.main(["noise", str(folder), "--run", "nope.csv"]) == 2
+    assert cli_main.main(["noise", str(folder), "--beta", "1.5"]) == 2
+
+
+# --- bench ------------------------------------------------------------------------
+
+
+def test_bench_rows_on_a_tiny_run():
+    from uavsim.bench.noise import COLUMNS, BenchConfig, aggregate, run_loop
+
+    cfg = BenchConfig(processes=2, duration=6.0, engine="lumped", kinds=("white",), levels=(0.2,))
+    rec = run_loop("altitude", cfg, np.random.default_rng(0))
+    rows = aggregate(rec)
+    assert {(r["controller"], r["noise"]) for r in rows} == {
+        (c, k) for c in cfg.controllers for k in ("none", "white")}
+    for r in rows:
+        assert set(COLUMNS) <= set(r)
+    mrft_clean = [r for r in rows if r["controller"] == "mrft" and r["noise"] == "none"][0]
+    assert mrft_clean["period_err_median"] == 0.0 and mrft_clean["no_limit_cycle"] == 0
+    mrft_noisy = [r for r in rows if r["controller"] == "mrft" and r["noise"] == "white"][0]
+    assert mrft_noisy["false_switch_rate"] > 0.05  # plain MRFT chatters at 20% white noise

@@ -1,0 +1,66 @@
+"""File formats of uavsim.
+
+For now one format: the flight *session* (``uavsim-session/1``), a folder with
+a ``session.toml`` and one ``t,r,y,u`` CSV per experiment, read for
+identification and the gap workflow and written from simulation. See
+:mod:`uavsim.formats.session` and ``shared/formats/session.md``.
+
+    from uavsim.formats import read_session, write_session
+
+    session = read_session("flights/2024-05-01")
+    write_session(session, "flights/copy")
+"""
+
+from uavsim.formats.session import (
+    CSV_HEADER,
+    EFFECT_PARAMS,
+    FORMAT,
+    LATERAL_LOOPS,
+    LOOPS,
+    RUN_KEYS,
+    RUN_KINDS,
+    SESSION_FILE,
+    EffectSpec,
+    ModelSpec,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    SessionError,
+    read_run_csv,
+    read_session,
+    session_summary,
+    validate_effect,
+    validate_model,
+    validate_run_data,
+    validate_run_params,
+    validate_session,
+    write_session,
+)
+
+__all__ = [
+    "CSV_HEADER",
+    "EFFECT_PARAMS",
+    "FORMAT",
+    "LATERAL_LOOPS",
+    "LOOPS",
+    "RUN_KEYS",
+    "RUN_KINDS",
+    "SESSION_FILE",
+    "EffectSpec",
+    "ModelSpec",
+    "Run",
+    "RunData",
+    "RunSpec",
+    "Session",
+    "SessionError",
+    "read_run_csv",
+    "read_session",
+    "session_summary",
+    "validate_effect",
+    "validate_model",
+    "validate_run_data",
+    "validate_run_params",
+    "validate_session",
+    "write_session",
+]

@@ -1,0 +1,260 @@
+"""Frequency response of the lumped loops and the describing-function MRFT prediction.
+
+Every lumped model has an exact frequency response (delays enter as
+``exp(-j w tau)``, no Pade approximation):
+
+    inner:    G(jw) = K e^{-j w tau} / (jw (T_prop jw + 1)(T1 jw + 1))
+    lateral:  G(jw) = K e^{-j w tau_out} T_att(jw) / (jw (T2 jw + 1))
+
+(``T_att`` in ``uavsim.lumped.lateral``). The MRFT with parameter ``beta`` and
+relay amplitude ``h`` has the describing function
+``N(a) = 4h/(pi a) (sqrt(1 - beta^2) - j beta)``; harmonic balance
+``N(a0) G(j Omega0) = -1`` gives
+
+    arg G(j Omega0) = -pi + asin(beta)        a0 = 4 h |G(j Omega0)| / pi
+
+(``beta < 0``: the relay leads, the test runs where the process lags by more
+than 180 deg). ``mrft_prediction`` solves it; the exact (non-sinusoidal) cycle
+is in ``uavsim.lumped.simulate.exact_limit_cycle``.
+
+    from uavsim.lumped import LumpedParams, freq_response, mrft_prediction
+    p = LumpedParams("altitude", K=1.0, T_prop=0.3, T1=0.2, tau=0.0128)
+    G = freq_response(p, np.array([1.0, 10.0]))
+    omega, amp = mrft_prediction(p, beta=-0.73, h=1.0)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from uavsim.errors import UserError
+from uavsim.lumped.params import LumpedParams
+
+__all__ = [
+    "freq_response",
+    "freq_response_batch",
+    "unwrapped_phase_batch",
+    "mrft_prediction",
+    "mrft_prediction_batch",
+    "check_beta",
+]
+
+
+def check_beta(beta: float) -> float:
+    """Raise ``UserError`` unless ``-1 < beta < 1``; return it as float."""
+    if not isinstance(beta, (int, float, np.floating)) or not math.isfinite(beta) or not -1.0 < beta < 1.0:
+        raise UserError(f"MRFT beta must be in (-1, 1), got {beta!r}")
+    return float(beta)
+
+
+def _col(x, n: int) -> np.ndarray:
+    """Broadcast a scalar or (B,) array to shape (B, 1)."""
+    a = np.asarray(x, dtype=float)
+    return np.broadcast_to(a.reshape(-1) if a.ndim else a, (n,)).reshape(n, 1)
+
+
+def freq_response_batch(
+    family: str,
+    omega: np.ndarray,
+    K,
+    T_prop,
+    T1,
+    tau,
+    T2=None,
+    tau_in=None,
+    att_kp=None,
+    att_kd=None,
+    att_N=None,
+) -> np.ndarray:
+    """Frequency response of many lumped processes of one family.
+
+    Parameters
+    ----------
+    family : str
+        ``"attitude"``, ``"altitude"`` (both inner) or ``"lateral"``.
+    omega : ndarray
+        Frequencies, rad/s, shape (W,) (same for all processes) or (B, W).
+    K, T_prop, T1, tau : float or ndarray (B,)
+        Gain, time constants (s) and delay (s; the outer delay for lateral).
+    T2, tau_in, att_kp, att_kd, att_N : float or ndarray (B,), lateral only
+        Drag time constant (s), attitude delay (s), attitude PD gains for the
+        unit-gain attitude process, and its derivative filter (rad/s). ``att_N``
+        defaults to ``10 * Omega_att`` (see ``uavsim.lumped.lateral``).
+
+    Returns
+    -------
+    ndarray, complex, shape (B, W)
+    """
+    omega = np.asarray(omega, dtype=float)
+    sizes = [np.size(v) for v in (K, T_prop, T1, tau, T2, tau_in, att_kp, att_kd, att_N) if v is not None]
+    B = max([omega.shape[0] if omega.ndim == 2 else 1, *sizes])
+    w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
+    s = 1j * w
+    if family in ("attitude", "altitude", "roll", "pitch"):
+        Tp, T1c, tc = _col(T_prop, B), _col(T1, B), _col(tau, B)
+        return _col(K, B) * np.exp(-s * tc) / (s * (Tp * s + 1.0) * (T1c * s + 1.0))
+    if family in ("lateral", "lateral_x", "lateral_y"):
+        from uavsim.lumped.lateral import attitude_closed_loop_batch
+
+        if T2 is None or tau_in is None or att_kp is None or att_kd is None:
+            raise UserError("lateral frequency response needs T2, tau_in, att_kp and att_kd")
+        Tatt = attitude_closed_loop_batch(w, T_prop, T1, tau_in, att_kp, att_kd, att_N)
+        return _col(K, B) * np.exp(-s * _col(tau, B)) * Tatt / (s * (_col(T2, B) * s + 1.0))
+    raise UserError(f"unknown loop family {family!r}")
+
+
+def _p_args(p: LumpedParams) -> dict:
+    d = {"K": p.K, "T_prop": p.T_prop, "T1": p.T1, "tau": p.tau}
+    if p.family == "lateral":
+        d.update(T2=p.T2, tau_in=p.tau_in, att_kp=p.att_kp, att_kd=p.att_kd, att_N=2 * math.pi * p.att_filter_hz)
+    return d
+
+
+def freq_response(p: LumpedParams, omega: np.ndarray) -> np.ndarray:
+    """Exact frequency response of one process.
+
+    Parameters
+    ----------
+    p : LumpedParams
+        The process (checked).
+    omega : ndarray, shape (W,)
+        Frequencies, rad/s.
+
+    Returns
+    -------
+    ndarray, complex, shape (W,)
+    """
+    p.check()
+    return freq_response_batch(p.family, np.atleast_1d(omega), **_p_args(p))[0]
+
+
+def unwrapped_phase_batch(family: str, omega: np.ndarray, **params) -> np.ndarray:
+    """Continuous phase (rad) of G(j w), shape (B, W), starting near -pi/2 at low w.
+
+    Inner loops use the closed form ``-pi/2 - atan(w T_prop) - atan(w T1) - w tau``
+    (sign of K ignored); lateral loops unwrap the numerical phase of ``T_att`` along
+    ``omega`` (which must be increasing and fine enough, e.g. 2000 log points).
+    """
+    omega = np.asarray(omega, dtype=float)
+    if family in ("attitude", "altitude", "roll", "pitch"):
+        B = max(np.size(params[k]) for k in ("T_prop", "T1", "tau"))
+        w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
+        return (
+            -np.pi / 2
+            - np.arctan(w * _col(params["T_prop"], B))
+            - np.arctan(w * _col(params["T1"], B))
+            - w * _col(params["tau"], B)
+        )
+    G = freq_response_batch(family, omega, **{**params, "K": 1.0})
+    ph = np.unwrap(np.angle(G), axis=-1)
+    # anchor the low-frequency end at -pi/2 (integrator; T_att(0) = 1)
+    return ph - 2 * np.pi * np.round((ph[:, :1] + np.pi / 2) / (2 * np.pi))
+
+
+def mrft_prediction_batch(
+    family: str, beta: float, h: float = 1.0, w_lo: float = 1e-2, w_hi: float = 1e6, **params
+) -> tuple[np.ndarray, np.ndarray]:
+    """Harmonic-balance (DF) MRFT frequency and amplitude for many processes.
+
+    Parameters
+    ----------
+    family : str
+        Loop family.
+    beta : float
+        MRFT parameter in (-1, 1).
+    h : float
+        Relay amplitude (command units).
+    w_lo, w_hi : float
+        Search band, rad/s.
+    **params
+        As ``freq_response_batch`` (arrays of shape (B,) or scalars).
+
+    Returns
+    -------
+    omega : ndarray (B,)
+        Oscillation frequency, rad/s (the lowest crossing of the target phase);
+        NaN where the phase never reaches it in the band.
+    amplitude : ndarray (B,)
+        Predicted amplitude of the error (output) oscillation, ``4 h |G| / pi``.
+    """
+    beta = check_beta(beta)
+    target = -np.pi + math.asin(beta)
+    if family in ("attitude", "altitude", "roll", "pitch"):
+        # the phase -pi/2 - atan(w T_prop) - atan(w T1) - w tau decreases monotonically:
+        # bisection in log w, then Newton to machine precision (no grid, any batch size)
+        B = max(np.size(params[k]) for k in ("T_prop", "T1", "tau"))
+        Tp, T1, tau = (np.broadcast_to(np.asarray(params[k], float).reshape(-1), (B,)) for k in ("T_prop", "T1", "tau"))
+
+        def phase(w):
+            return -np.pi / 2 - np.arctan(w * Tp) - np.arctan(w * T1) - w * tau
+
+        a = np.full(B, math.log(w_lo))
+        b = np.full(B, math.log(w_hi))
+        has = phase(np.exp(b)) <= target
+        for _ in range(60):
+            m = 0.5 * (a + b)
+            lower = phase(np.exp(m)) > target
+            a = np.where(lower, m, a)
+            b = np.where(lower, b, m)
+        w = np.exp(0.5 * (a + b))
+        for _ in range(3):
+            df = -Tp / (1 + (w * Tp) ** 2) - T1 / (1 + (w * T1) ** 2) - tau
+            w = w - (phase(w) - target) / df
+        omega = w
+    else:
+        wg = np.geomspace(w_lo, w_hi, 4000)
+        ph = unwrapped_phase_batch(family, wg, **params)
+        B = ph.shape[0]
+        below = ph <= target
+        has = below.any(axis=1)
+        i1 = np.clip(np.argmax(below, axis=1), 1, len(wg) - 1)
+        rows = np.arange(B)
+        # refine inside the bracket on a local grid of 64 points (vectorized), then interpolate
+        lw0, lw1 = np.log(wg[i1 - 1]), np.log(wg[i1])
+        u = np.linspace(0.0, 1.0, 64)
+        lw = lw0[:, None] + (lw1 - lw0)[:, None] * u[None, :]
+        G = freq_response_batch(family, np.exp(lw), **{**params, "K": 1.0})
+        # continue the unwrapped phase from the bracket's left end
+        ph_loc = np.unwrap(np.angle(G), axis=1)
+        ph_loc = ph_loc - ph_loc[:, :1] + ph[rows, i1 - 1][:, None]
+        j1 = np.clip(np.argmax(ph_loc <= target, axis=1), 1, 63)
+        p0, p1 = ph_loc[rows, j1 - 1], ph_loc[rows, j1]
+        x0, x1 = lw[rows, j1 - 1], lw[rows, j1]
+        omega = np.exp(x0 + (target - p0) / (p1 - p0) * (x1 - x0))
+    omega[~has] = np.nan
+    G = np.full(B, np.nan, dtype=complex)
+    ok = np.isfinite(omega)
+    if ok.any():
+        sel = {k: (np.asarray(v).reshape(-1)[ok] if np.size(v) > 1 else v) for k, v in params.items()}
+        G[ok] = freq_response_batch(family, omega[ok][:, None], **sel)[:, 0]
+    return omega, 4.0 * h * np.abs(G) / np.pi
+
+
+def mrft_prediction(p: LumpedParams, beta: float, h: float = 1.0) -> tuple[float, float]:
+    """Harmonic-balance prediction of the MRFT oscillation of one process.
+
+    Parameters
+    ----------
+    p : LumpedParams
+        The process.
+    beta : float
+        MRFT parameter, -1 < beta < 1.
+    h : float
+        Relay amplitude, > 0.
+
+    Returns
+    -------
+    omega : float
+        Oscillation frequency, rad/s.
+    amplitude : float
+        Amplitude of the output oscillation, output units (``4 h |G(j omega)| / pi``).
+    """
+    p.check()
+    if not h > 0:
+        raise UserError(f"relay amplitude h must be > 0, got {h!r}")
+    w, a = mrft_prediction_batch(p.family, beta, h, **_p_args(p))
+    if not np.isfinite(w[0]):
+        raise UserError(f"{p.loop}: no MRFT oscillation predicted for beta={beta} (phase never reaches the target)")
+    return float(w[0]), float(a[0])

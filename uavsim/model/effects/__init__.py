@@ -1,0 +1,31 @@
+"""Effects: named, composable, parameterized imperfections of a loop.
+
+Names and parameters follow the effect vocabulary of
+``shared/formats/session.md`` (delay, lag, gain, saturation, dead_zone,
+rate_limit, bias, quantization, sample_hold, lowpass, noise), plus ``wind``
+and ``pull`` (external forces). One effect is one file; importing this
+package registers them all.
+
+    from uavsim.model.effects import make_effect
+    eff = make_effect("lowpass", cutoff_hz=20.0)
+"""
+
+from uavsim.model.effects import (  # noqa: F401  (imports register the effects)
+    bias,
+    dead_zone,
+    delay,
+    gain,
+    lag,
+    lowpass,
+    noise,
+    pull,
+    quantization,
+    rate_limit,
+    sample_hold,
+    saturation,
+    wind,
+)
+from uavsim.model.effects.base import REGISTRY, Effect, SignalEffect, make_effect
+from uavsim.model.effects.base_force import ForceEffect
+
+__all__ = ["REGISTRY", "Effect", "SignalEffect", "ForceEffect", "make_effect"]

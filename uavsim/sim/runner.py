@@ -1,0 +1,291 @@
+"""Batched closed-loop episodes on ``mujoco.batch``.
+
+``LoopBatch`` runs ``n`` episodes of one loop of the hexarotor at once: every
+episode has its own lumped parameters (mapped onto the MuJoCo model by
+``uavsim.model.mapping``) and its own random draws. Between two controller
+samples the physics advances ``rate_steps = 1 / (rate_hz * dt)`` substeps in
+one ``Batch.step`` call on all threads; the controller, the measurement chain
+and the command chain run vectorized in numpy on ``(n,)`` arrays. The
+controller sees the measurement chain (noise, quantization, sample-and-hold,
+filters), never ground truth.
+
+    lb = LoopBatch(params, dt=0.0005, rate_hz=200.0, effects=[make_effect("noise", std=0.002)], seed=7)
+    res = lb.run(NPMRFT(beta=-0.73, h=1.0, tau_obs=0.02, a_n=0.004, rate_hz=200.0, n=lb.n), duration_s=20.0)
+    res.t.shape, res.y.shape     # (T,), (n, T): t, r, y, u recorded at the control rate
+
+Episodes that diverge (NaN, a runaway state, a MuJoCo error) are flagged in
+``res.diverged`` with a reason, and their rows are NaN: they are never
+returned as data (``res.valid()`` keeps the others).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import batch as mjbatch
+
+from uavsim.errors import UserError
+from uavsim.lumped.params import LumpedParams
+from uavsim.model.effects.base import Effect, SignalEffect
+from uavsim.model.effects.base_force import ForceEffect
+from uavsim.model.mapping import AXIS, WRENCH, LoopMapping, map_params
+from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
+
+# Ideal holds on the axes a loop does not test: slow and well damped, so that
+# they stay stable with any rotor lag and delay of the paper's ranges.
+_HOLD_OMEGA = 2.0  # rad/s
+
+
+@dataclass
+class EpisodeResult:
+    """Recorded episodes, at the control rate.
+
+    Attributes
+    ----------
+    t : (T,) s
+    r, y, u : (n, T) reference, measurement as the controller saw it, command as it computed it
+    y_true : (n, T) the loop's true output (no sensor effects)
+    diverged : (n,) bool; diverged rows are NaN
+    reasons : dict episode -> why it diverged
+    switched : (n, T) bool, where the controller reported a switch (relays), else None
+    seed : the batch's seed
+    """
+
+    t: np.ndarray
+    r: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    y_true: np.ndarray
+    diverged: np.ndarray
+    reasons: dict[int, str] = field(default_factory=dict)
+    switched: np.ndarray | None = None
+    seed: int = 0
+
+    @property
+    def n(self) -> int:
+        return self.y.shape[0]
+
+    def valid(self) -> np.ndarray:
+        """Indices of the episodes that did not diverge, (m,)."""
+        return np.flatnonzero(~self.diverged)
+
+
+def _split_effects(effects: Sequence[Effect]):
+    model, command, measurement, force = [], [], [], []
+    for e in effects:
+        {"model": model, "command": command, "measurement": measurement, "force": force}[e.target].append(e)
+    return model, command, measurement, force
+
+
+class LoopBatch:
+    """``n`` closed-loop episodes of one hexarotor loop on a ``mujoco.batch.Batch``.
+
+    Parameters
+    ----------
+    params : sequence of LumpedParams, length n
+        One lumped process per episode, all of the same loop.
+    vehicle : Vehicle
+        The airframe (default: the paper's hexarotor).
+    dt : float
+        Physics step, s; ``1 / (rate_hz dt)`` must be an integer.
+    rate_hz : float
+        Controller rate, Hz.
+    effects : sequence of Effect
+        Applied to every episode (parameters may be arrays of shape (n,)).
+    seed : int
+        Seed of every random draw of the batch (effects, noise).
+    nthread : int
+        Threads of the MuJoCo batch (0: all CPUs).
+    y0 : (n,) or None
+        Initial value of the tested output (m or rad); 0 by default.
+    saturation : bool
+        Clip rotor PWM to the vehicle's measured range (off for lumped models).
+    """
+
+    def __init__(
+        self,
+        params: Sequence[LumpedParams],
+        *,
+        vehicle: Vehicle | None = None,
+        dt: float = 0.0005,
+        rate_hz: float = 200.0,
+        effects: Sequence[Effect] = (),
+        seed: int = 0,
+        nthread: int = 0,
+        y0: np.ndarray | None = None,
+        saturation: bool = False,
+    ):
+        self.vehicle = (vehicle or Vehicle()).check()
+        if not (math.isfinite(dt) and dt > 0):
+            raise UserError(f"physics timestep must be > 0 s, got {dt}")
+        steps = 1.0 / (rate_hz * dt)
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise UserError(f"control period 1/{rate_hz} Hz is not a whole number of {dt} s physics steps")
+        self.dt, self.rate_hz, self.rate_steps = float(dt), float(rate_hz), int(round(steps))
+        self.seed = int(seed)
+        self.params = list(params)
+        self.effects = list(effects)
+        model_fx, self.command_fx, self.measurement_fx, self.force_fx = _split_effects(self.effects)
+        extra_delay = sum((np.asarray(e.delay, dtype=float) for e in model_fx if e.name == "delay"), 0.0)
+        gain = np.prod([np.asarray(e.factor, dtype=float) for e in model_fx if e.name == "gain"], axis=0) if any(
+            e.name == "gain" for e in model_fx
+        ) else 1.0
+        self.map: LoopMapping = map_params(self.params, self.vehicle, extra_delay, gain)
+        self.loop = self.map.loop
+        self.n = self.map.n
+        self.lateral = self.loop not in WRENCH
+        max_delay = float(max(self.map.actuator_delay.max(), self.map.out_delay.max())) + 2 * dt
+        xml = hexarotor_mjcf(self.vehicle, timestep=dt, max_delay_s=max_delay, saturation=saturation)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self._sensor_x = self.model.sensor("x").id
+        self._sensor_y = self.model.sensor("y").id
+        self.nthread = nthread
+        self.y0 = None if y0 is None else np.broadcast_to(np.asarray(y0, dtype=float), (self.n,)).copy()
+        self._make_batch()
+
+    def _make_batch(self) -> None:
+        m, n = self.map, self.n
+        b = mjbatch.Batch(self.model, n, self.nthread)
+        b.expand("dof_damping")[:] = m.damping
+        b.expand("actuator_dynprm")[:, :, 0] = m.T_prop[:, None]
+        b.expand("actuator_delay")[:] = m.actuator_delay[:, None]
+        if self.lateral:
+            # sensordata lags the state by one substep (it is computed before the
+            # last integration), which is part of the outer delay
+            sd = b.expand("sensor_delay")
+            sid = self._sensor_x if self.loop == "lateral_x" else self._sensor_y
+            sd[:, sid] = np.maximum(m.out_delay - self.dt, 0.0)
+            b.expand("sensor_history")  # noqa: B018  per-simulation buffers follow the delays
+        b.reset()
+        self.batch = b
+        self.qpos = b.bind("qpos")
+        self.qvel = b.bind("qvel")
+        self.ctrl = b.bind("ctrl")
+        self.xfrc = b.bind("xfrc_applied")
+        self.sensordata = b.bind("sensordata") if self.lateral else None
+        if self.y0 is not None:
+            self.qpos[:, self.map.axis] = self.y0
+
+    # -- one control sample -------------------------------------------------
+    def _holds(self, wrench: np.ndarray, skip: int | None) -> None:
+        """Slow ideal PD holds on the untested axes (on the true state)."""
+        v, q, w = self.vehicle, self.qpos, self.qvel
+        om = _HOLD_OMEGA
+        for widx, ax, inertia in ((0, 2, v.mass_kg), (1, 3, v.Jx_kgm2), (2, 4, v.Jy_kgm2), (3, 5, v.Jz_kgm2)):
+            if widx == skip:
+                continue
+            wrench[:, widx] += -inertia * om * om * q[:, ax] - 2.0 * inertia * om * w[:, ax]
+
+    def _apply(self, u_cmd: np.ndarray, att_u: np.ndarray | None) -> None:
+        v, m = self.vehicle, self.map
+        wrench = np.zeros((self.n, 4))
+        if not self.lateral:
+            wrench[:, WRENCH[self.loop]] = m.cmd_scale * u_cmd
+            self._holds(wrench, WRENCH[self.loop])
+        else:
+            widx = 2 if self.loop == "lateral_x" else 1
+            wrench[:, widx] = m.att_scale * att_u
+            self._holds(wrench, widx)
+            # keep the vertical thrust at m g while tilted, so x'' = g tan(theta)
+            c = np.cos(self.qpos[:, 3]) * np.cos(self.qpos[:, 4])
+            wrench[:, 0] += v.mass_kg * G * (1.0 / np.maximum(c, 0.2) - 1.0)
+        thrust = wrench @ v.mixer().T
+        self.ctrl[:] = thrust / v.thrust_per_us
+
+    def _measure_true(self) -> np.ndarray:
+        if not self.lateral:
+            return self.qpos[:, self.map.axis].copy()
+        sid = self._sensor_x if self.loop == "lateral_x" else self._sensor_y
+        return self.sensordata[:, sid].copy()
+
+    def run(
+        self,
+        controller: Callable[[np.ndarray], np.ndarray],
+        duration_s: float,
+        reference: np.ndarray | Callable[[float], np.ndarray] | None = None,
+    ) -> EpisodeResult:
+        """Run every episode for ``duration_s`` with ``controller`` closing the loop.
+
+        Parameters
+        ----------
+        controller : callable e (n,) -> u (n,)
+            Called once per control sample with the error ``r - y``.
+        duration_s : float
+            Episode length, s; ``T = round(duration_s * rate_hz)`` samples.
+        reference : None, (T,), (n, T) or callable t -> (n,)
+            The reference; zero by default.
+        """
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise UserError(f"episode length must be > 0 s, got {duration_s}")
+        n, T = self.n, int(round(duration_s * self.rate_hz))
+        rng = np.random.default_rng(self.seed)
+        for e in self.measurement_fx + self.command_fx:
+            e.reset(n, self.rate_hz, rng)
+        drag = self.map.damping[:, :3]
+        for e in self.force_fx:
+            e.reset(n, self.rate_hz, rng, drag)
+        t = np.arange(T) / self.rate_hz
+        if reference is None:
+            ref = lambda k: np.zeros(n)  # noqa: E731
+        elif callable(reference):
+            ref = lambda k: np.broadcast_to(np.asarray(reference(t[k]), dtype=float), (n,))  # noqa: E731
+        else:
+            R = np.broadcast_to(np.asarray(reference, dtype=float), (n, T))
+            ref = lambda k: R[:, k]  # noqa: E731
+        R_out, Y, U, Yt = (np.empty((n, T)) for _ in range(4))
+        SW = np.zeros((n, T), dtype=bool)
+        has_sw = hasattr(controller, "switched")
+        diverged = np.zeros(n, dtype=bool)
+        reasons: dict[int, str] = {}
+        if self.lateral:
+            from uavsim.control.pd import PD
+
+            att = PD(self.map.att_kp, self.map.att_kd, self.map.att_filter_hz, self.rate_hz, n)
+            att_ax = 4 if self.loop == "lateral_x" else 3
+            tilt_sign = 1.0 if self.loop == "lateral_x" else -1.0
+        limit = 1e3
+        for k in range(T):
+            y_true = self._measure_true()
+            y = y_true
+            for e in self.measurement_fx:
+                y = e(y, k)
+            r = ref(k)
+            u = np.asarray(controller(r - y), dtype=np.float64)
+            u_act = u
+            for e in self.command_fx:
+                u_act = e(u_act, k)
+            att_u = None
+            if self.lateral:
+                theta_ref = tilt_sign * self.map.cmd_scale * u_act
+                att_u = att(theta_ref - self.qpos[:, att_ax])
+            self._apply(u_act, att_u)
+            if self.force_fx:
+                f = sum(e.force(t[k], self.qvel[:, :3]) for e in self.force_fx)
+                self.xfrc[:, 1, :3] = f
+            R_out[:, k], Y[:, k], U[:, k], Yt[:, k] = r, y, u, y_true
+            if has_sw:
+                SW[:, k] = controller.switched
+            try:
+                self.batch.step(nstep=self.rate_steps)
+            except mjbatch.SimulationError as exc:
+                for i in exc.ids:
+                    if not diverged[i]:
+                        diverged[i] = True
+                        reasons[int(i)] = f"MuJoCo error at t={t[k]:.3f}s: {self.batch.error(int(i))}"
+            bad = ~np.isfinite(self.qpos).all(axis=1) | (np.abs(self.qpos[:, :3]) > limit).any(axis=1)
+            bad |= (np.abs(self.qpos[:, 3:5]) > 1.2).any(axis=1)
+            new = bad & ~diverged
+            for i in np.flatnonzero(new):
+                reasons[int(i)] = f"runaway state at t={t[k]:.3f}s"
+            diverged |= bad
+            if new.any():
+                # park diverged episodes so that they cannot poison the batch
+                self.qpos[new] = 0.0
+                self.qvel[new] = 0.0
+        for arr in (R_out, Y, U, Yt):
+            arr[diverged] = np.nan
+        return EpisodeResult(t, R_out, Y, U, Yt, diverged, reasons, SW if has_sw else None, self.seed)
