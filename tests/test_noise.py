@@ -62,7 +62,7 @@ def test_paper_noise_amplitude_and_frequency():
 
 
 def test_coloured_noise_std_and_band_limit():
-    y = apply(ColouredNoise(std=0.05, high_hz=10.0), np.zeros((40000, 1)))[:, 0]
+    y = apply(ColouredNoise(std=0.05, high_hz=10.0), np.zeros((20000, 1)))[:, 0]
     assert y.std() == pytest.approx(0.05, rel=0.1)
     # low-passed: the sample-to-sample difference is much smaller than for white noise
     assert np.std(np.diff(y)) < 0.5 * 0.05 * math.sqrt(2)
@@ -186,9 +186,9 @@ def test_false_switch_rate_counts_chatter():
 
 
 def write_demo_session(tmp_path, kind="mrft"):
+    from uavsim.control.relay import NPMRFT
     from uavsim.formats.session import Run, RunData, RunSpec, Session, write_session
     from uavsim.lumped.reference import LumpedDiscrete
-    from uavsim.control.relay import NPMRFT
 
     rng = np.random.default_rng(0)
     sim = LumpedDiscrete.inner(2.0, 0.2, 1.0, 0.04, 1 / RATE, 1)  # a ~0.5 s cycle

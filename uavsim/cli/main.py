@@ -22,6 +22,10 @@ from uavsim.errors import UserError
 _COMMAND_MODULES = [
     "uavsim.cli.model_cmd",
     "uavsim.cli.sim_cmd",
+    "uavsim.cli.session_cmd",
+    "uavsim.cli.tune_cmd",
+    "uavsim.cli.grid_cmd",
+    "uavsim.cli.noise_cmd",
     "uavsim.cli.bench_cmd",
 ]
 
@@ -34,7 +38,13 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in _COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:  # a real missing dependency, not an absent command
+                raise
+            continue
+        mod.register(sub)
     return parser
 
 

@@ -30,9 +30,8 @@ from mujoco import batch as mjbatch
 
 from uavsim.errors import UserError
 from uavsim.lumped.params import LumpedParams
-from uavsim.model.effects.base import Effect, SignalEffect
-from uavsim.model.effects.base_force import ForceEffect
-from uavsim.model.mapping import AXIS, WRENCH, LoopMapping, map_params
+from uavsim.model.effects.base import Effect
+from uavsim.model.mapping import WRENCH, LoopMapping, map_params
 from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
 
 # Ideal holds on the axes a loop does not test: slow and well damped, so that

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import SignalEffect, register, require
 
 
 @register
