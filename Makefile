@@ -17,6 +17,7 @@ help:
 	@echo "make test            install and run the tests (CI runs this)"
 	@echo "make test-slow       also the long checks (minutes)"
 	@echo "make bench           benchmarks (ratios against same-run baselines)"
+	@echo "make replay          Rerun recording of the demo episode"
 	@echo "make generate-data   training sets (not implemented yet: issue 5)"
 	@echo "make train           networks (not implemented yet: issue 6)"
 
@@ -37,6 +38,8 @@ demo: $(STAMP)
 	$(BIN)/uavsim tune --loop altitude --T-prop 0.3 --T1 0.2 --tau 0.0128
 	@echo "== noise estimate of the saved episode"
 	$(BIN)/uavsim noise $(OUT)/demo-sessions/altitude
+	@echo "== Rerun recording of the episode (limit cycle, switches, extrema, phase portrait)"
+	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -50,7 +53,10 @@ lint: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/uavsim bench sim
 
-generate-data train replay:
+replay: $(STAMP)
+	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
+
+generate-data train:
 	@echo "make $@: not implemented yet (see the open issues)"; exit 2
 
 clean:

@@ -26,6 +26,7 @@ _COMMAND_MODULES = [
     "uavsim.cli.tune_cmd",
     "uavsim.cli.grid_cmd",
     "uavsim.cli.noise_cmd",
+    "uavsim.cli.replay_cmd",
     "uavsim.cli.bench_cmd",
 ]
 
