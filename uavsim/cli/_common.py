@@ -47,3 +47,21 @@ def print_table(rows: list[dict[str, Any]], columns: list[str] | None = None, fi
     print("  ".join("-" * w for w in widths), file=file)
     for row in cells:
         print("  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)), file=file)
+
+
+def register_modules(sub, names: list[str]) -> None:
+    """Import each module in ``names`` and call its ``register(sub)``.
+
+    A module that is not there (a command not built yet) is skipped; a module
+    that fails to import because of something *it* imports still raises.
+    """
+    import importlib
+
+    for name in names:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        mod.register(sub)

@@ -12,10 +12,10 @@ adds its parser and sets ``func(args) -> int``. User errors
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 
+from uavsim.cli._common import register_modules
 from uavsim.errors import UserError
 
 # Modules that register subcommands, in --help order.
@@ -38,14 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in _COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:  # a real missing dependency, not an absent command
-                raise
-            continue
-        mod.register(sub)
+    register_modules(sub, _COMMAND_MODULES)
     return parser
 
 

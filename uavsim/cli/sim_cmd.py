@@ -13,7 +13,7 @@ import numpy as np
 from uavsim.cli._common import eprint, print_json, print_table
 from uavsim.control.relay import MRFT, NPMRFT
 from uavsim.lumped.params import LumpedParams
-from uavsim.sim.cycles import relay_cycle
+from uavsim.noise.analysis import cycle_stats
 from uavsim.sim.runner import LoopBatch
 
 _DEFAULTS = {
@@ -41,7 +41,7 @@ def _relay(args: argparse.Namespace) -> int:
         res = lb.run(ctl, args.duration)
         if res.diverged[0]:
             eprint(f"{loop}: diverged: {res.reasons[0]}")
-        P, A, nc = relay_cycle(res.y[0], res.u[0], args.rate)
+        P, A, nc = cycle_stats(res.t, res.y[0], res.u[0], settle=0.5 * args.duration)
         row = {"loop": loop, **kw, "beta": args.beta, "h": args.h, "period_s": P, "amplitude": A, "cycles": nc}
         try:
             from uavsim.lumped import exact_limit_cycle

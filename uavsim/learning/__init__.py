@@ -1,1 +1,17 @@
-"""TODO"""
+"""DNN-NP-MRFT learning: network, J-weighted loss, trainer, evaluation, export, identification.
+
+The classifier maps one preprocessed limit cycle (``uavsim.data.preprocess``)
+to a class of the loop's grid (``uavsim.tuning.grid``); the class gives the
+lumped time parameters and the rule gains for K = 1, the cycle amplitude gives K.
+
+    from uavsim.learning.train import train_from_recipe
+    report = train_from_recipe("training/small.toml")          # writes training/runs/small/
+    from uavsim.learning.identify import identify_session
+    identify_session("scenarios/sessions/altitude-npmrft")      # JSON of session.md
+
+Modules: ``model`` (network), ``loss`` (J-weighted softmax cross-entropy),
+``train`` (recipes, checkpoints, resume, early stopping), ``evaluate``
+(held-out and off-grid metrics, closed-loop ISE criterion), ``export``
+(TorchScript artefact and a numpy+torch inference path), ``identify``
+(sessions -> class, parameters, gains).
+"""

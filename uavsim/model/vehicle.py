@@ -182,8 +182,8 @@ def hexarotor_mjcf(
     {chr(10).join('    ' + a for a in acts).strip()}
   </actuator>
   <sensor>
-    <jointpos name="x" joint="x"/>
-    <jointpos name="y" joint="y"/>
+    <jointpos name="x" joint="x" nsample="{nsample}" interp="linear"/>
+    <jointpos name="y" joint="y" nsample="{nsample}" interp="linear"/>
     <jointpos name="z" joint="z"/>
     <jointpos name="roll" joint="roll"/>
     <jointpos name="pitch" joint="pitch"/>

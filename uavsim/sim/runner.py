@@ -143,6 +143,8 @@ class LoopBatch:
         self._sensor_x = self.model.sensor("x").id
         self._sensor_y = self.model.sensor("y").id
         self.nthread = nthread
+        # wrench -> rotor PWM (us), computed once: pinv is not free at 200 Hz
+        self._wrench_to_pwm = (self.vehicle.mixer() / self.vehicle.thrust_per_us).T.copy()
         self.y0 = None if y0 is None else np.broadcast_to(np.asarray(y0, dtype=float), (self.n,)).copy()
         self._make_batch()
 
@@ -192,8 +194,7 @@ class LoopBatch:
             # keep the vertical thrust at m g while tilted, so x'' = g tan(theta)
             c = np.cos(self.qpos[:, 3]) * np.cos(self.qpos[:, 4])
             wrench[:, 0] += v.mass_kg * G * (1.0 / np.maximum(c, 0.2) - 1.0)
-        thrust = wrench @ v.mixer().T
-        self.ctrl[:] = thrust / v.thrust_per_us
+        self.ctrl[:] = wrench @ self._wrench_to_pwm
 
     def _measure_true(self) -> np.ndarray:
         if not self.lateral:
