@@ -130,3 +130,23 @@ def test_invalid_parameters_rejected():
         exact_limit_cycle(ALT, -0.73, h=0.0)
     with pytest.raises(UserError, match="required"):
         freq_response(LumpedParams("lateral_x", 1.0, 0.05, 0.5, 0.1), np.array([1.0]))
+
+
+def test_lateral_reference_ramp_and_delay():
+    """LateralDiscrete: a step of u makes x ramp at K u (T_att(0) = 1), seen tau_out late."""
+    from uavsim.lumped.reference import LateralDiscrete
+
+    dt, rate = 5e-4, 200.0
+    taus = np.array([0.0005, 0.0123, 0.1])
+    sim = LateralDiscrete(2.0, 0.05, 0.5, 0.01, 0.8, taus, 3.0, 0.5, 20.0, dt, rate)
+    y = sim.reset()
+    ys, xs = [], []
+    for _ in range(int(12 * rate)):
+        y = sim.step(np.full(3, 0.1))
+        ys.append(y)
+        xs.append(sim.plant.x[:, 3].copy())
+    ys, xs = np.array(ys), np.array(xs)
+    slope = (xs[-1] - xs[-201]) / (200 / rate)
+    np.testing.assert_allclose(slope, 2.0 * 0.1, rtol=1e-6)
+    # at the ramp the measurement trails the state by slope * tau_out
+    np.testing.assert_allclose(xs[-1] - ys[-1], slope * taus, rtol=1e-6)

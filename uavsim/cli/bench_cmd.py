@@ -6,7 +6,13 @@ import argparse
 
 from uavsim.cli._common import register_modules
 
-_BENCHES = ["uavsim.bench.sim", "uavsim.bench.noise"]
+_BENCHES = [
+    "uavsim.bench.sim",
+    "uavsim.bench.noise",
+    "uavsim.bench.generate",
+    "uavsim.bench.infer",
+    "uavsim.bench.gap",
+]
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -26,6 +26,11 @@ _COMMAND_MODULES = [
     "uavsim.cli.tune_cmd",
     "uavsim.cli.grid_cmd",
     "uavsim.cli.noise_cmd",
+    "uavsim.cli.generate_cmd",
+    "uavsim.cli.train_cmd",
+    "uavsim.cli.identify_cmd",
+    "uavsim.cli.scenario_cmd",
+    "uavsim.cli.gap_cmd",
     "uavsim.cli.replay_cmd",
     "uavsim.cli.bench_cmd",
 ]

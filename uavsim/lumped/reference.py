@@ -15,6 +15,18 @@ the sampling of the relay.
         y = sim.step(relay(-y))
 
 Shapes: ``n`` processes stepped together; states ``(n, nx)``.
+
+The lateral loop (``LateralDiscrete``) is the composite of the attitude
+process, the sampled attitude PD and the outer drag-integrator, with the
+attitude command as the single ZOH input (delayed by ``tau_in``) and ``x``
+read through an output delay line of ``tau_out`` (linear interpolation between
+physics samples, as the MuJoCo sensor with ``interp="linear"``):
+
+    sim = LateralDiscrete(K=1.0, T_prop=0.05, T1=0.5, tau_in=0.01, T2=1.5, tau_out=0.04,
+                          att_kp=3.0, att_kd=0.4, att_filter_hz=20.0, dt=5e-4, rate_hz=200.0)
+    y = sim.reset()
+    for k in range(samples):          # one call per control sample
+        y = sim.step(relay(-y))
 """
 
 from __future__ import annotations
@@ -129,3 +141,99 @@ class LumpedDiscrete:
         )
         self.k += 1
         return self.x @ self.C
+
+
+class LateralDiscrete:
+    """``n`` lateral loops ``K e^{-tau_out s} T_att(s) / (s (T2 s + 1))``, stepped exactly.
+
+    The state is the composite ``[theta, theta', a, x, x']`` of a unit-gain
+    attitude process ``e^{-tau_in s} / (s (T_prop s + 1)(T1 s + 1))`` (``a`` the
+    lagged propulsion command) and the outer ``x'' = (K / T2) theta - x' / T2``;
+    ``theta`` is in lumped units (one unit of ``u`` is one unit of attitude
+    reference), so ``x / u = K T_att / (s (T2 s + 1))`` with ``T_att`` the
+    attitude loop closed by the sampled PD of ``uavsim.control.pd`` at
+    ``rate_hz`` on the true ``theta``. The PD output is the only input of the
+    continuous state: it is held for a control period and discretized exactly
+    at the physics step ``dt`` with the input delay ``tau_in``
+    (``LumpedDiscrete``). The measurement is ``x(t - tau_out)`` from a delay
+    line at ``dt``, linearly interpolated between samples and zero before
+    ``t = 0`` (a MuJoCo sensor history with ``interp="linear"`` answers so).
+
+    Parameters
+    ----------
+    K, T_prop, T1, tau_in, T2, tau_out, att_kp, att_kd, att_filter_hz : float or array (n,)
+        Lateral gain (output units per command unit per s), attitude time
+        constants (s), attitude delay (s), drag time constant (s), output delay
+        (s, >= dt), attitude PD gains for the unit-gain attitude process and its
+        derivative filter (Hz).
+    dt : float
+        Physics step, s; ``1 / (rate_hz dt)`` must be a whole number.
+    rate_hz : float
+        Controller rate (attitude PD and the caller's outer controller), Hz.
+    """
+
+    def __init__(self, K, T_prop, T1, tau_in, T2, tau_out, att_kp, att_kd, att_filter_hz, dt: float, rate_hz: float):
+        from uavsim.control.pd import PD
+
+        vals = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
+                                     for v in (K, T_prop, T1, tau_in, T2, tau_out, att_kp, att_kd, att_filter_hz)))
+        K, T_prop, T1, tau_in, T2, tau_out, kp, kd, fhz = (v.copy() for v in vals)
+        n = K.shape[0]
+        steps = 1.0 / (rate_hz * dt)
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            raise ValueError(f"control period 1/{rate_hz} Hz is not a whole number of {dt} s steps")
+        if np.any(tau_out < dt - 1e-12):
+            raise ValueError("tau_out must be >= dt (the measurement is at least one physics step old)")
+        self.n, self.dt, self.rate_steps = n, float(dt), int(round(steps))
+        A = np.zeros((n, 5, 5))
+        B = np.zeros((n, 5, 1))
+        A[:, 0, 1] = 1.0
+        A[:, 1, 1] = -1.0 / T1
+        A[:, 1, 2] = 1.0 / T1
+        A[:, 2, 2] = -1.0 / T_prop
+        B[:, 2, 0] = 1.0 / T_prop
+        A[:, 3, 4] = 1.0
+        A[:, 4, 0] = K / T2
+        A[:, 4, 4] = -1.0 / T2
+        self.plant = LumpedDiscrete(A, B, np.array([0.0, 0.0, 0.0, 1.0, 0.0]), tau_in, dt)
+        self.pd = PD(kp, kd, fhz, rate_hz, n)
+        self.tau_out = tau_out
+        self.out_len = int(np.ceil(tau_out.max() / dt)) + 3
+        self.reset()
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Attitude in lumped units (n,): tilt / (tilt per command unit)."""
+        return self.plant.x[:, 0].copy()
+
+    def _measure(self) -> np.ndarray:
+        # x at t_now - tau_out on the physics grid, linear between samples
+        s = self.plant.k - self.tau_out / self.dt  # fractional sample index
+        j0 = np.floor(s + 1e-9).astype(np.int64)
+        f = np.clip(s - j0, 0.0, 1.0)
+        f = np.where(f < 1e-9, 0.0, f)
+        L = self.out_len
+        rows = np.arange(self.n)
+        x0 = np.where(j0 >= 0, self.xhist[rows, j0 % L], 0.0)
+        x1 = np.where(j0 + 1 >= 0, self.xhist[rows, (j0 + 1) % L], 0.0)
+        return np.where(f > 0, (1 - f) * x0 + f * x1, x0)
+
+    def reset(self, x0: np.ndarray | None = None) -> np.ndarray:
+        """Zero state (or ``x0`` (n, 5): theta, theta', a, x, x'); return the first measurement (n,)."""
+        self.plant.reset(x0, prehistory="zero")
+        self.pd.reset()
+        self.xhist = np.zeros((self.n, self.out_len))
+        self.xhist[:, 0] = self.plant.x[:, 3]
+        return self._measure()
+
+    def step(self, u: np.ndarray) -> np.ndarray:
+        """Apply the lateral command ``u`` (n,) for one control period; return the measurement (n,).
+
+        The attitude PD acts on ``u - theta`` at this instant and its output is
+        held for ``rate_steps`` physics steps.
+        """
+        att_u = self.pd(np.asarray(u, float) - self.plant.x[:, 0])
+        for _ in range(self.rate_steps):
+            self.plant.step(att_u)
+            self.xhist[:, self.plant.k % self.out_len] = self.plant.x[:, 3]
+        return self._measure()

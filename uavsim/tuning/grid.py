@@ -24,7 +24,18 @@ identification coverage:
    thin slab around the level.
 
 Lateral grids repeat this over ``(T2, tau_out)`` for each attitude class, with the
-attitude loop closed by that class's rule PD.
+attitude loop closed by that class's rule PD, with three differences:
+
+* each attitude class has its own MRFT ``beta`` (``choose_lateral_beta``: on a
+  coarse sample, the candidate in [-0.9, -0.1] whose own-loop rule stabilizes
+  the largest part of the box, then the smallest worst ISE deterioration
+  against the ISE-optimal PD); the sub-grid's ``beta``/``c1``/``c3`` are its own;
+* processes their own rule controller cannot stabilize (Nyquist test; a few are
+  confirmed in time, ``verify_unstable``, counts in ``built``) have no finite
+  own ISE, so J is undefined for them: they are excluded from the design and
+  from coverage, and ``built["stable_fraction"]`` says how much of the box is left;
+* the lateral MRFT frequency spans more than 15 J-spaced levels, so the levels
+  are capped at the class target (neighbour J above 1.10).
 
     from uavsim.tuning.grid import load_grid
     g = load_grid("altitude"); g.n, g.kp[0], g.J.shape
@@ -258,8 +269,23 @@ def _kmeans(Z: np.ndarray, k: int, rng: np.random.Generator, iters: int = 50) ->
     return np.unique(idx)
 
 
+def own_loop_stable(fam: str, X: np.ndarray, w: np.ndarray, rule: TuningRule, att: dict | None) -> np.ndarray:
+    """Whether each process X (P, d) is stable under its own rule controller, (P,) bool.
+
+    Nyquist test of ``uavsim.lumped.ise`` on the rule PD (filter ``10 Omega``)
+    and the process (``w``: its DF MRFT frequencies, rad/s, all finite).
+    """
+    from uavsim.lumped.ise import step_ise_batch
+
+    pp = _proc_params(fam, X, att)
+    g = rule.gains_batch(fam, K=1.0, **pp)
+    _, stable = step_ise_batch(fam, g["kp"], g["kd"], g["N"], w, n=1500, return_stable=True, K=1.0, **pp)
+    return stable
+
+
 def _design(fam: str, n_target: int, rule: TuningRule, rng: np.random.Generator, n_samples: int,
-            target_J: float, att: dict | None = None, n_calib: int = 40) -> dict[str, Any]:
+            target_J: float, att: dict | None = None, n_calib: int = 40, stable_only: bool = False,
+            max_levels: int | None = None) -> dict[str, Any]:
     c1, c3 = rule.constants
     lo, hi = _log_box(fam)
     U = rng.random((n_samples, len(lo)))
@@ -267,10 +293,21 @@ def _design(fam: str, n_target: int, rule: TuningRule, rng: np.random.Generator,
     w = _omega(fam, X, rule.beta, att)
     ok = np.isfinite(w)
     U, X, w = U[ok], X[ok], w[ok]
+    n_sampled = len(w)
+    if stable_only:
+        # a process its own rule controller cannot stabilize has no finite ISE:
+        # J (a ratio to that ISE) is undefined for it, so it cannot be a class
+        ok = own_loop_stable(fam, X, w, rule, att)
+        U, X, w = U[ok], X[ok], w[ok]
+        if len(w) < 3:
+            raise UserError(f"{fam}: fewer than 3 sampled processes are stable under their own rule at beta={rule.beta}")
     r = _calibrate_ratio(fam, X[:n_calib], w[:n_calib], c1, c3, target_J, att)
     lw = np.log(w)
     lmin, lmax = lw.min(), lw.max()
     n_lev = max(1, int(math.ceil((lmax - lmin) / math.log(r) - 1e-9)))
+    if max_levels is not None:
+        # a class budget smaller than the J-spaced level count: wider levels, larger neighbour J
+        n_lev = min(n_lev, max_levels)
     step = (lmax - lmin) / n_lev  # <= log r: levels exactly tile the range
     band = np.minimum(((lw - lmin) / step).astype(int), n_lev - 1)
     vol = np.bincount(band, minlength=n_lev).astype(float)
@@ -291,10 +328,11 @@ def _design(fam: str, n_target: int, rule: TuningRule, rng: np.random.Generator,
         levels.extend([lev] * len(idx))
     chosen = np.array(chosen)
     return {"X": X[chosen], "level": np.array(levels), "ratio": r, "n_levels": n_lev, "level_step": math.exp(step),
-            "omega_range": [float(w.min()), float(w.max())]}
+            "omega_range": [float(w.min()), float(w.max())], "stable_fraction": len(w) / max(n_sampled, 1)}
 
 
-def _finish(fam: str, loop_name: str, design: dict, rule: TuningRule, att: dict | None, built: dict) -> Grid:
+def _finish(fam: str, loop_name: str, design: dict, rule: TuningRule, att: dict | None, built: dict,
+            cycle_kw: dict | None = None) -> Grid:
     X = design["X"]
     c1, c3 = rule.constants
     pp = _proc_params(fam, X, att)
@@ -303,7 +341,7 @@ def _finish(fam: str, loop_name: str, design: dict, rule: TuningRule, att: dict 
     w_ex, a_ex = np.empty(len(X)), np.empty(len(X))
     for i in range(len(X)):
         p = _as_params(fam, X[i], att)
-        T, a = fourier_limit_cycle(p, rule.beta, 1.0)
+        T, a = fourier_limit_cycle(p, rule.beta, 1.0, **(cycle_kw or {}))
         w_ex[i], a_ex[i] = 2 * np.pi / T, a
     params = {k: X[:, i] for i, k in enumerate(_AXES[fam])}
     return Grid(loop=loop_name, version=GRID_VERSION, params=params, kp=g["kp"], kd=g["kd"],
@@ -338,19 +376,134 @@ def build_grid(loop: str, beta: float = DEFAULT_BETA, pm_deg: float = DEFAULT_PM
         g = _finish(fam, fam, d, rule, None, built)
         built["build_time_s"] = round(time.time() - t0, 1)
         return g
+    return _build_lateral(rule, rng, t0, built, n_target or TARGETS["lateral"], target_J, log)
+
+
+#: candidate MRFT betas of the lateral loops (the authors' search bounds, step 0.1)
+LATERAL_BETAS = tuple(round(b, 2) for b in np.arange(-0.9, -0.05, 0.1))
+
+
+def attitude_of(att_grid: Grid, a: int) -> dict[str, float]:
+    """The attitude class ``a`` as the dict a lateral sub-grid stores (unit-gain rule PD)."""
+    return {"T_prop": float(att_grid.params["T_prop"][a]), "T1": float(att_grid.params["T1"][a]),
+            "tau_in": float(att_grid.params["tau"][a]), "att_kp": float(att_grid.kp[a]), "att_kd": float(att_grid.kd[a]),
+            "att_filter_hz": float(att_grid.derivative_filter_hz[a]), "att_class": a}
+
+
+def choose_lateral_beta(att: dict, pm_deg: float, rng: np.random.Generator, n_points: int = 10,
+                        betas: tuple[float, ...] = LATERAL_BETAS, tol: float = 0.05) -> dict[str, Any]:
+    """MRFT beta of the lateral loop over one attitude class.
+
+    On a coarse log-uniform sample of the (T2, tau_out) box plus its four
+    corners, each candidate beta's rule (at ``pm_deg``) is scored by the
+    fraction of points its own-loop controller stabilizes and by its worst ISE
+    deterioration ``Q(rule) / Q(ISE-optimal PD)`` over the points it
+    stabilizes. The beta with the largest stable fraction (within ``tol``) and,
+    among those, the smallest worst deterioration is chosen: over slow attitude
+    classes no beta stabilizes the whole box (the lateral cycle sits on the
+    attitude loop's resonance), so the stable fraction comes first.
+
+    Returns
+    -------
+    dict: ``beta``, ``stable_fraction``, ``worst_deterioration``, ``table``
+    (rows ``[beta, stable_fraction, worst_deterioration]``), ``n_points``.
+    """
+    from uavsim.lumped.ise import step_ise_batch
+    from uavsim.tuning.search import optimal_pd
+
+    lo, hi = _log_box("lateral")
+    X = np.vstack([np.exp(lo + (hi - lo) * rng.random((n_points, 2))),
+                   np.exp(np.array([[lo[0], lo[1]], [hi[0], lo[1]], [lo[0], hi[1]], [hi[0], hi[1]]]))])
+    pp = _proc_params("lateral", X, att)
+    # the optimal PD starts from a safe point: half the beta = -0.1 rule, the most stable one
+    safe = TuningRule(-0.1, pm_deg).gains_batch("lateral", K=1.0, **pp)
+    q_opt = np.empty(len(X))
+    for i in range(len(X)):
+        pi = {k: (np.asarray(v).reshape(-1)[i] if np.size(v) > 1 else v) for k, v in pp.items()}
+        _, _, q_opt[i] = optimal_pd("lateral", {"K": 1.0, **pi}, float(safe["N"][i]), float(safe["omega"][i]),
+                                    (0.5 * float(safe["kp"][i]), 0.5 * float(safe["kd"][i])))
+    table = []
+    for b in betas:
+        rule = TuningRule(b, pm_deg)
+        try:
+            g = rule.gains_batch("lateral", K=1.0, **pp)
+        except UserError:
+            table.append([float(b), 0.0, math.inf])
+            continue
+        q = step_ise_batch("lateral", g["kp"], g["kd"], g["N"], g["omega"], n=1500, K=1.0, **pp)
+        fin = np.isfinite(q) & np.isfinite(q_opt)
+        worst = float(np.max(q[fin] / q_opt[fin])) if fin.any() else math.inf
+        table.append([float(b), float(np.mean(np.isfinite(q))), worst])
+    best_frac = max(r[1] for r in table)
+    cands = [r for r in table if r[1] >= best_frac - tol]
+    b, frac, worst = min(cands, key=lambda r: r[2])
+    # JSON has no infinity: an unusable beta's worst deterioration is stored as null
+    table = [[r[0], r[1], r[2] if math.isfinite(r[2]) else None] for r in table]
+    return {"beta": b, "stable_fraction": frac, "worst_deterioration": worst if math.isfinite(worst) else None,
+            "table": table, "n_points": len(X)}
+
+
+def verify_unstable(points: list[tuple[dict, float, np.ndarray]], pm_deg: float, periods: float = 30.0) -> np.ndarray:
+    """Time-domain check of Nyquist instability claims, (m,) bool: True where the step diverges.
+
+    ``points``: (attitude dict, beta, x = (T2, tau_out)). Each process is
+    simulated (``uavsim.lumped.simulate``, 1 ms, sampled PD) under its own rule
+    controller for ``periods`` MRFT periods; it counts as diverging when the
+    error's envelope over the last third exceeds 10 times the unit step.
+    """
+    from uavsim.lumped.simulate import simulate_pd_step_batch
+
+    if not points:
+        return np.zeros(0, bool)
+    cols: dict[str, list] = {}
+    gains: dict[str, list] = {"kp": [], "kd": [], "N": [], "omega": []}
+    for att, beta, x in points:
+        pp = _proc_params("lateral", np.asarray(x, float)[None, :], att)
+        g = TuningRule(beta, pm_deg).gains_batch("lateral", K=1.0, **pp)
+        for k, v in pp.items():
+            cols.setdefault(k, []).append(float(np.asarray(v).reshape(-1)[0]))
+        for k in gains:
+            gains[k].append(float(g[k][0]))
+    dt = 1e-3
+    steps = int(periods * 2 * np.pi / min(gains["omega"]) / dt)
+    res = simulate_pd_step_batch("lateral", np.array(gains["kp"]), np.array(gains["kd"]), np.array(gains["N"]), dt,
+                                 steps, K=1.0, **{k: np.array(v) for k, v in cols.items()})
+    e = res["e"]
+    tail = np.abs(e[:, -steps // 3:])
+    return ~np.isfinite(tail).all(axis=1) | (np.nan_to_num(tail, nan=np.inf).max(axis=1) > 10.0)
+
+
+def _build_lateral(rule: TuningRule, rng: np.random.Generator, t0: float, built: dict[str, Any], n_target: int,
+                   target_J: float, log) -> Grid:
+    """One sub-grid per attitude class, each at its own beta, over its stable part of the box."""
     att_grid = load_grid("attitude")
-    n_target = n_target or TARGETS["lateral"]
-    built.update(n_target=n_target, attitude_hash=att_grid.hash)
-    subs = []
+    built.update(n_target=n_target, attitude_hash=att_grid.hash,
+                 method="per attitude class: beta by stable fraction then worst ISE deterioration; omega levels "
+                        "spaced by J + k-means on iso-Omega slabs over the points stable under their own rule")
+    subs, checks = [], []
     for a in range(att_grid.n):
-        att = {"T_prop": float(att_grid.params["T_prop"][a]), "T1": float(att_grid.params["T1"][a]),
-               "tau_in": float(att_grid.params["tau"][a]), "att_kp": float(att_grid.kp[a]), "att_kd": float(att_grid.kd[a]),
-               "att_filter_hz": float(att_grid.derivative_filter_hz[a]), "att_class": a}
-        d = _design("lateral", n_target, rule, rng, 3000, target_J, att=att, n_calib=12)
-        sb = {"level_ratio": d["ratio"], "n_levels": d["n_levels"], "omega_range": d["omega_range"]}
-        subs.append(_finish("lateral", "lateral", d, rule, att, sb))
+        att = attitude_of(att_grid, a)
+        choice = choose_lateral_beta(att, rule.pm_deg, rng)
+        sub_rule = TuningRule(choice["beta"], rule.pm_deg)
+        d = _design("lateral", n_target, sub_rule, rng, 800, target_J, att=att, n_calib=8, stable_only=True,
+                    max_levels=n_target)
+        sb = {"level_ratio": d["ratio"], "n_levels": d["n_levels"], "level_step": d["level_step"],
+              "omega_range": d["omega_range"], "stable_fraction": d["stable_fraction"], "beta_choice": choice}
+        # the lateral response rolls off at least as 1/w^3: 150 odd harmonics are plenty
+        subs.append(_finish("lateral", "lateral", d, sub_rule, att, sb, cycle_kw={"n_harm": 150, "n_t": 1000}))
+        # two unstable sample points per class for the time-domain check
+        lo, hi = _log_box("lateral")
+        Xs = np.exp(lo + (hi - lo) * rng.random((200, 2)))
+        ws = _omega("lateral", Xs, sub_rule.beta, att)
+        fin = np.isfinite(ws)
+        bad = np.flatnonzero(~own_loop_stable("lateral", Xs[fin], ws[fin], sub_rule, att))[:2]
+        checks += [(att, sub_rule.beta, Xs[fin][j]) for j in bad]
         if log:
-            log(f"lateral sub-grid {a + 1}/{att_grid.n}: {subs[-1].n} classes ({time.time() - t0:.0f} s)")
+            log(f"lateral sub-grid {a + 1}/{att_grid.n}: beta {sub_rule.beta}, {subs[-1].n} classes, "
+                f"{100 * d['stable_fraction']:.0f}% of the box stable ({time.time() - t0:.0f} s)")
+    diverged = verify_unstable(checks, rule.pm_deg)
+    built["instability_check"] = {"n_points": len(checks), "n_diverged_in_time": int(diverged.sum())}
+    built["lateral_betas"] = [s.beta for s in subs]
     g = Grid(loop="lateral", version=GRID_VERSION, params={}, kp=np.zeros(0), kd=np.zeros(0),
              derivative_filter_hz=np.zeros(0), omega=np.zeros(0), amplitude=np.zeros(0), omega_df=np.zeros(0),
              J=np.zeros((0, 0)), beta=rule.beta, pm_deg=rule.pm_deg, c1=rule.constants[0], c3=rule.constants[1],
@@ -398,16 +551,24 @@ def coverage(grid: Grid, n_points: int = 2000, seed: int = 1) -> dict[str, Any]:
     w = _omega(fam, X, grid.beta, att)
     ok = np.isfinite(w)
     X, w = X[ok], w[ok]
+    extra: dict[str, Any] = {}
+    if fam == "lateral":
+        # J is a ratio to the point's own-rule ISE: undefined where that loop is unstable
+        st = own_loop_stable(fam, X, w, TuningRule(grid.beta, grid.pm_deg), att)
+        extra = {"stable_fraction": float(st.mean())}
+        X, w = X[st], w[st]
+    if len(w) == 0:
+        return {"n_points": 0, "worst_J": float("nan"), "p99_J": float("nan"), "mean_J": float("nan"), **extra}
     D = deterioration(fam, w, grid.omega_df, grid.c1, grid.c3, **_proc_params(fam, X, att))  # (n, P)
     best = D.min(axis=0)
     return {"n_points": int(len(w)), "worst_J": float(best.max()), "p99_J": float(np.quantile(best, 0.99)),
-            "mean_J": float(best.mean())}
+            "mean_J": float(best.mean()), **extra}
 
 
 def grid_report(grid: Grid, n_points: int = 2000, seed: int = 1) -> dict[str, Any]:
     """Counts, neighbour-J statistics, coverage and build figures of a grid."""
     if grid.sub:
-        per = [grid_report(s, n_points=max(n_points // len(grid.sub), 100), seed=seed + k) for k, s in enumerate(grid.sub)]
+        per = [grid_report(s, n_points=max(n_points // len(grid.sub), 10), seed=seed + k) for k, s in enumerate(grid.sub)]
         return {
             "loop": grid.loop, "version": grid.version, "hash": grid.hash, "beta": grid.beta, "pm_deg": grid.pm_deg,
             "n_subgrids": len(grid.sub), "n_classes_total": int(sum(s.n for s in grid.sub)),
@@ -415,9 +576,13 @@ def grid_report(grid: Grid, n_points: int = 2000, seed: int = 1) -> dict[str, An
             "neighbour_J_across_levels": {"mean": float(np.nanmean([p["neighbour_J_across_levels"]["mean"] for p in per])),
                                           "min": float(np.nanmin([p["neighbour_J_across_levels"]["min"] for p in per])),
                                           "max": float(np.nanmax([p["neighbour_J_across_levels"]["max"] for p in per]))},
+            "neighbour_J_across_levels_median": float(np.nanmedian([p["neighbour_J_across_levels"]["mean"] for p in per])),
             "coverage": {"n_points": int(sum(p["coverage"]["n_points"] for p in per)),
-                         "worst_J": float(max(p["coverage"]["worst_J"] for p in per)),
-                         "mean_J": float(np.mean([p["coverage"]["mean_J"] for p in per]))},
+                         "worst_J": float(np.nanmax([p["coverage"]["worst_J"] for p in per])),
+                         "p99_J_median": float(np.nanmedian([p["coverage"]["p99_J"] for p in per])),
+                         "mean_J": float(np.nanmean([p["coverage"]["mean_J"] for p in per])),
+                         "stable_fraction": float(np.mean([p["coverage"].get("stable_fraction", 1.0) for p in per]))},
+            "betas": [s.beta for s in grid.sub],
             "build_time_s": grid.built.get("build_time_s"), "built": grid.built,
         }
     Js = symmetrize(grid.J)
