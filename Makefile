@@ -18,8 +18,8 @@ help:
 	@echo "make test-slow       also the long checks (minutes)"
 	@echo "make bench           benchmarks (ratios against same-run baselines)"
 	@echo "make replay          Rerun recording of the demo episode"
-	@echo "make generate-data   training sets (not implemented yet: issue 5)"
-	@echo "make train           networks (not implemented yet: issue 6)"
+	@echo "make generate-data   training sets into datasets/ (LOOPS=\"altitude attitude\" or LOOPS=lateral)"
+	@echo "make train           networks into training/runs/ from those sets"
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -30,6 +30,11 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	@mkdir -p $(OUT)
+	@echo "== DNN-NP-MRFT end to end on the small embedded default: generate -> train -> identify"
+	$(BIN)/uavsim generate datasets/small.toml --out datasets/small.h5
+	$(BIN)/uavsim train training/small.toml
+	$(BIN)/uavsim identify scenarios/sessions/altitude-npmrft --models training/runs/small
+	@echo "(truth of that session:)"; cat scenarios/sessions/altitude-npmrft.truth.json; echo
 	@echo "== relay (MRFT beta=-0.73) on each loop of the MuJoCo hexarotor, against the exact lumped cycle"
 	$(BIN)/uavsim sim relay --duration 15 --session $(OUT)/demo-sessions
 	@echo "== the same episode read back as a flight session"
@@ -52,12 +57,17 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/uavsim bench sim
+	$(BIN)/uavsim bench generate
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 $(BIN)/uavsim bench infer --models training/runs/small
 
 replay: $(STAMP)
 	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
 
-generate-data train:
-	@echo "make $@: not implemented yet (see the open issues)"; exit 2
+generate-data: $(STAMP)
+	@for l in $(LOOPS); do $(BIN)/uavsim generate datasets/$$l.toml --out datasets/$$l.h5 || exit $$?; done
+
+train: $(STAMP)
+	@for l in $(LOOPS); do $(BIN)/uavsim train training/$$l.toml || exit $$?; done
 
 clean:
 	rm -rf $(OUT) .pytest_cache

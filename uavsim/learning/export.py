@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -67,9 +68,12 @@ def export_model(net: torch.nn.Module, meta: dict[str, Any], out_dir: str | os.P
     net = net.eval()
     try:
         example = torch.zeros(2, int(meta["channels"]), int(meta["input_length"]))
-        with torch.no_grad():
+        # TorchScript is deprecated upstream in favour of torch.export but is still the
+        # artefact that loads with torch alone on embedded targets (and in C++ via libtorch)
+        with torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
             scripted = torch.jit.trace(net.cpu(), example)
-        _atomic_write_bytes(out / MODEL_FILE, lambda p: torch.jit.save(scripted, p))
+            _atomic_write_bytes(out / MODEL_FILE, lambda p: torch.jit.save(scripted, p))
     finally:
         net.train(was_training)
     meta = dict(meta, format=META_FORMAT)
@@ -103,7 +107,9 @@ class Predictor:
             raise UserError(f"{d / META_FILE}: format {self.meta.get('format')!r}, expected {META_FORMAT!r}")
         if threads is not None:
             torch.set_num_threads(int(threads))
-        self.module = torch.jit.load(str(d / MODEL_FILE), map_location="cpu").eval()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            self.module = torch.jit.load(str(d / MODEL_FILE), map_location="cpu").eval()
         self.dir = d
         self.channels = int(self.meta["channels"])
         self.input_length = int(self.meta["input_length"])
@@ -122,7 +128,23 @@ class Predictor:
         with torch.inference_mode():
             return self.module(torch.from_numpy(np.ascontiguousarray(x))).numpy()
 
+    @property
+    def gain_head(self) -> bool:
+        return bool(self.meta.get("net", {}).get("gain_head", False))
+
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted classes (B,) int64 (argmax of the activations) and the activations (B, n)."""
-        a = self.activations(x)
-        return a.argmax(axis=1).astype(np.int64), a
+        """Predicted classes (B,) int64 (argmax of the class activations) and those activations (B, n)."""
+        c, a, _ = self.predict_full(x)
+        return c, a
+
+    def predict_full(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Classes (B,), class activations (B, n) and the amplitude correction (B,).
+
+        The correction is ``exp`` of the gain head (the measured amplitude over
+        ``K h a_class``); 1 without a gain head.
+        """
+        out = self.activations(x)
+        n = self.n_classes
+        a = out[:, :n]
+        corr = np.exp(out[:, n].astype(np.float64)) if self.gain_head else np.ones(out.shape[0])
+        return a.argmax(axis=1).astype(np.int64), a, corr

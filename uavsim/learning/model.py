@@ -9,11 +9,12 @@ applied only in training, and the predicted class is ``argmax a``.
 
     from uavsim.learning.model import NetConfig, IdentNet
     net = IdentNet(NetConfig(channels=2, input_length=400, n_classes=208))
-    a = net(torch.zeros(8, 2, 400))        # (8, 208)
+    a = net(torch.zeros(8, 2, 400))        # (8, 208); (8, 209) with gain_head=True
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import torch
@@ -38,6 +39,22 @@ class NetConfig:
         Hidden layer widths (paper: 3000, 1000).
     dropout : float
         Dropout probability after each hidden layer (authors' code: 0.4).
+    gain_head : bool
+        Add one output: the log ratio of the measured cycle amplitude to the
+        class's exact MRFT amplitude times K h (see ``uavsim.learning.train``).
+        Not in the paper: NP-MRFT's observation delay, relay bias and noise make
+        that ratio differ from 1 by tens of percent, which the gain recovery
+        ``K = (a / h) / a_class`` would otherwise carry into the gains.
+    period_features : int
+        Number of radial-basis features of the log cycle length appended to
+        the flattened input (0: none, the paper's network). The cycle length
+        is read off the input itself (the u channel is +-1 over the cycle, 0
+        in the padding), so the preprocessing is unchanged. Not in the paper:
+        on our altitude sets a plain nearest-period rule beat the paper's
+        network trained for the 5-minute CPU budget, because a fully connected
+        layer must otherwise learn where the zero padding ends.
+    period_range_s : tuple of float
+        Period span (s at 200 Hz) the basis covers.
     """
 
     channels: int
@@ -45,25 +62,42 @@ class NetConfig:
     n_classes: int
     hidden: list[int] = field(default_factory=lambda: [3000, 1000])
     dropout: float = 0.4
+    gain_head: bool = False
+    period_features: int = 0
+    period_range_s: tuple[float, float] = (0.05, 3.0)
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
 class IdentNet(nn.Module):
-    """Fully connected classifier, input (B, C, L) float32 -> activations (B, n_classes)."""
+    """Fully connected classifier, input (B, C, L) float32 -> activations (B, n_classes [+ 1]).
+
+    With ``gain_head`` the last column is the predicted log amplitude ratio, the
+    first ``n_classes`` the class activations.
+    """
 
     def __init__(self, cfg: NetConfig):
         super().__init__()
         self.cfg = cfg
-        layers: list[nn.Module] = [nn.Flatten()]
-        width = cfg.channels * cfg.input_length
+        layers: list[nn.Module] = []
+        width = cfg.channels * cfg.input_length + cfg.period_features
         for h in cfg.hidden:
             # ReLU before BatchNorm, as in the authors' MATLAB layer stack
             layers += [nn.Linear(width, h), nn.ReLU(), nn.BatchNorm1d(h), nn.Dropout(cfg.dropout)]
             width = h
-        layers.append(nn.Linear(width, cfg.n_classes))
+        layers.append(nn.Linear(width, cfg.n_classes + (1 if cfg.gain_head else 0)))
         self.layers = nn.Sequential(*layers)
+        k = max(cfg.period_features, 1)
+        lo, hi = (math.log(p * 200.0) for p in cfg.period_range_s)
+        self.register_buffer("centres", torch.linspace(lo, hi, k))
+        self.width = (hi - lo) / max(k - 1, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.layers(x)
+        flat = x.flatten(1)
+        if self.cfg.period_features:
+            # cycle length in samples: the relay channel (last) is +-1 on the cycle, 0 in the padding
+            n = x[:, -1, :].abs().sum(dim=1).clamp_min(1.0).log()
+            rbf = torch.exp(-0.5 * ((n[:, None] - self.centres[None, :]) / self.width) ** 2)
+            flat = torch.cat([flat, rbf], dim=1)
+        return self.layers(flat)

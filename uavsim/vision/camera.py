@@ -126,9 +126,9 @@ PRESETS: dict[str, CameraParams] = {
     "normal": CameraParams("normal", rate_hz=60.0, latency_s=0.035, focal_px=615.0, width_px=640, height_px=480,
                            quantization_px=1.0, noise_px=0.3),
     # DAVIS346: 346 x 260, events accumulated over 10 ms; the checkered circle
-    # rotates, so the reconstructed circle's centre wobbles at the rotation rate
+    # rotates (1 rev/s, 8 sectors), so the reconstructed centre wobbles at 8 Hz
     "event": CameraParams("event", rate_hz=100.0, latency_s=0.008, focal_px=250.0, width_px=346, height_px=260,
-                          quantization_px=1.0, noise_px=0.3, pattern_px=0.8, pattern_hz=3.0),
+                          quantization_px=1.0, noise_px=0.3, pattern_px=0.8, pattern_hz=8.0),
     # small uncooled thermal core: 160 x 120, ~30 deg HFOV, slow and noisy
     "thermal": CameraParams("thermal", rate_hz=30.0, latency_s=0.060, focal_px=300.0, width_px=160, height_px=120,
                             quantization_px=1.0, noise_px=0.8),

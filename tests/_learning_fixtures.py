@@ -1,0 +1,114 @@
+"""Tiny ``uavsim-dataset/1`` files for the learning tests, written by the real writer."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uavsim.data.h5 import write_dataset
+
+
+def synthetic_cycles(n_classes: int, per_class: int, L: int, seed: int, noise: float = 0.05):
+    """Separable fake cycles: class c is a sine of c+1 half-periods, plus its relay square wave."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, L, endpoint=False)
+    X, y = [], []
+    for c in range(n_classes):
+        base_y = np.sin(np.pi * (c + 1) * t)
+        base_u = np.sign(np.sin(np.pi * (c + 1) * t + 0.3))
+        for _ in range(per_class):
+            X.append(np.stack([base_y + noise * rng.standard_normal(L), base_u]))
+            y.append(c)
+    return np.asarray(X, np.float32), np.asarray(y, np.int32)
+
+
+def tiny_J(n_classes: int) -> np.ndarray:
+    """J growing with class distance (rows predicted, columns true), 1 on the diagonal, not symmetric."""
+    i, j = np.meshgrid(np.arange(n_classes), np.arange(n_classes), indexing="ij")
+    return 1.0 + 0.2 * (i - j) ** 2 + 0.05 * np.maximum(i - j, 0)
+
+
+def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: int = 32, seed: int = 0,
+                       loop: str = "altitude") -> Path:
+    X, y = synthetic_cycles(n_classes, per_class, L, seed)
+    N = len(y)
+    rng = np.random.default_rng(seed + 100)
+    K = np.exp(rng.uniform(np.log(0.5), np.log(2.0), N))
+    a_cls = np.linspace(0.1, 1.0, n_classes)
+    # measured amplitude inflated by a class-dependent factor, as NP-MRFT does (what the gain head learns)
+    amp = K * a_cls[y] * (1.0 + 0.3 * y / n_classes)
+    eps = {"inputs": X, "labels": y, "K": K, "bias": np.zeros(N), "noise_kind": np.zeros(N),
+           "noise_level": np.zeros(N), "period": np.ones(N), "amplitude": amp, "y0": np.zeros(N),
+           "tau_obs": np.zeros(N), "a_n": np.zeros(N), "episode": np.arange(N), "sim_seed": np.zeros(N)}
+    classes = {k: np.linspace(0.1, 1.0, n_classes) for k in
+               ("T_prop", "T1", "tau", "kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")}
+    attrs = {"loop": loop, "grid_hash": "test", "grid_version": 1, "beta": -0.73, "h": 1.0, "tau_obs": 0.0,
+             "a_n": 0.0, "rate_hz": 200.0, "input_length": L, "channels": ["y", "u"], "recipe": "seed = 0\n",
+             "seed": seed, "versions": json.dumps({}), "git_commit": "test", "n_episodes": N, "n_diverged": 0,
+             "n_rejected": 0, "noise_kinds": ["none"]}
+    return write_dataset(path, eps, classes, tiny_J(n_classes), attrs)
+
+
+#: altitude classes with periods 0.26, 0.60, 1.27 s
+CLASSES = [153, 76, 10]
+
+
+def three_class_set(path: Path, grid, L: int) -> None:
+    """Three far-apart altitude classes simulated with the exact lumped model (h = 1, K in [0.5, 2], 2% noise)."""
+    from uavsim.data.preprocess import features_batch
+    from uavsim.lumped.simulate import simulate_relay_batch
+
+    rng = np.random.default_rng(0)
+    per = 24
+    X, labels, K, A = [], [], [], []
+    for lab, c in enumerate(CLASSES):
+        p = grid.params_of(c)
+        Ks = np.exp(rng.uniform(np.log(0.5), np.log(2.0), per))
+        n_steps = int(8 * grid.period[c] * 200)
+        sim = simulate_relay_batch("altitude", grid.beta, 1.0, 0.005, n_steps, K=Ks, T_prop=p.T_prop, T1=p.T1,
+                                   tau=p.tau)
+        y = -sim["e"] + 0.02 * grid.amplitude[c] * Ks[:, None] * rng.standard_normal(sim["e"].shape)
+        x, _, amp, ok = features_batch(y, sim["u"], 200.0, 1.0, 0.0, L)
+        assert ok.all()
+        X.append(x)
+        A.append(amp)
+        labels += [lab] * per
+        K.append(Ks)
+    N = len(labels)
+    z = np.zeros(N)
+    eps = {"inputs": np.concatenate(X), "labels": np.array(labels), "K": np.concatenate(K), "bias": z,
+           "noise_kind": z, "noise_level": z, "period": z, "amplitude": np.concatenate(A), "y0": z, "tau_obs": z, "a_n": z,
+           "episode": np.arange(N), "sim_seed": z}
+    ci = np.array(CLASSES)
+    classes = {k: np.asarray(grid.params[k])[ci] for k in ("T_prop", "T1", "tau")}
+    classes.update({k: np.asarray(getattr(grid, k))[ci] for k in
+                    ("kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")})
+    classes["grid_index"] = ci.astype(float)
+    attrs = {"loop": "altitude", "grid_hash": grid.hash, "grid_version": grid.version, "beta": grid.beta, "h": 1.0,
+             "tau_obs": 0.0, "a_n": 0.0, "rate_hz": 200.0, "input_length": L, "channels": ["y", "u"],
+             "cycles_per_input": 1, "recipe": "seed = 0\n", "seed": 0, "versions": "{}", "git_commit": "test",
+             "n_episodes": N, "n_diverged": 0, "n_rejected": 0, "noise_kinds": ["none"]}
+    write_dataset(path, eps, classes, np.asarray(grid.J)[np.ix_(ci, ci)], attrs)
+
+
+@pytest.fixture(scope="session")
+def three_model(tmp_path_factory):
+    """A tiny network trained on ``three_class_set``: (folder, exported model folder, grid)."""
+    from uavsim.data.preprocess import input_length
+    from uavsim.learning.train import load_train_recipe, train
+    from uavsim.tuning.grid import load_grid
+
+    tmp = tmp_path_factory.mktemp("three")
+    grid = load_grid("altitude")
+    three_class_set(tmp / "three.h5", grid, input_length(grid))
+    (tmp / "training").mkdir()
+    rp = tmp / "training" / "three.toml"
+    rp.write_text('name = "three"\nloop = "altitude"\ndataset = "three.h5"\nout = "model"\nseed = 2\n'
+                  "[net]\nhidden = [64, 32]\ndropout = 0.1\n[optim]\nepochs = 25\nbatch_size = 16\nlr = 0.003\n"
+                  "[early_stopping]\npatience = 25\nval_fraction = 0.2\n")
+    rep = train(load_train_recipe(rp), quiet=True)
+    assert rep["val"]["top1"] == 1.0
+    return tmp, Path(rep["out"]), grid

@@ -1,0 +1,141 @@
+"""Scenario flow: DF identification, the identification call, a short end-to-end run, the CLI."""
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uavsim.errors import UserError
+from uavsim.lumped.params import LumpedParams
+from uavsim.lumped.simulate import simulate_relay_batch
+from uavsim.scenario.config import load_scenario
+from uavsim.scenario.flow import identify, identify_mrft_df, run_scenario
+from uavsim.scenario.table import format_table, table_rows
+from uavsim.tuning.rule import TuningRule
+
+SCEN = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def test_mrft_df_gains_close_to_rule_on_true_model():
+    p = LumpedParams("altitude", K=2.0, T_prop=0.1, T1=0.8, tau=0.02)
+    dt, beta, h = 0.001, -0.73, 0.5
+    out = simulate_relay_batch("altitude", beta, h, dt, 20000, K=2.0, T_prop=0.1, T1=0.8, tau=0.02)
+    t = out["t"]
+    ident = identify_mrft_df(t, out["e"][0], out["u"][0], beta, h, 20.0, settle_s=5.0)
+    g = TuningRule(beta=beta).gains(p)
+    # the describing function is approximate (exact cycles differ by 4-18%)
+    assert ident["gains"]["kp"] == pytest.approx(g.kp, rel=0.25)
+    assert ident["gains"]["kd"] == pytest.approx(g.kd, rel=0.25)
+    assert ident["params"] is None and ident["identifier"] == "mrft-df"
+
+
+def test_mrft_df_needs_a_cycle():
+    t = np.arange(1000) * 0.005
+    with pytest.raises(UserError, match="no steady cycle"):
+        identify_mrft_df(t, np.zeros_like(t), np.ones_like(t), -0.73, 1.0, 20.0, 1.0)
+
+
+def test_identify_calls_identify_session(monkeypatch, tmp_path):
+    """The DNN path is one call to uavsim.learning.identify.identify_session."""
+    import uavsim.learning.identify as li
+
+    seen = {}
+
+    def fake_identify_session(path, model_dir=None):  # TEST double, tests only
+        seen["path"], seen["model_dir"] = path, model_dir
+        return {"loop": "altitude", "class": 3, "params": {"K": 1.0, "T_prop": 0.1, "T1": 0.5, "tau": 0.02},
+                "gains": {"kp": 1.0, "kd": 0.3}}
+
+    monkeypatch.setattr(li, "identify_session", fake_identify_session)
+    df = {"identifier": "mrft-df", "gains": {"kp": 9.0, "kd": 9.0}}
+    out = identify(tmp_path, "dnn", "", df)
+    assert out["class"] == 3 and out["identifier"] == "dnn"
+    assert seen == {"path": tmp_path, "model_dir": None}
+
+
+def test_identify_auto_falls_back_and_says_why(monkeypatch, tmp_path):
+    import uavsim.learning.identify as li
+
+    def failing(path, model_dir=None):  # TEST double, tests only
+        raise UserError("no trained altitude network")
+
+    monkeypatch.setattr(li, "identify_session", failing)
+    df = {"identifier": "mrft-df", "gains": {"kp": 9.0, "kd": 9.0}}
+    out = identify(tmp_path, "auto", "", df)
+    assert out["identifier"] == "mrft-df" and "no trained" in out["note"]
+    with pytest.raises(UserError):
+        identify(tmp_path, "dnn", "", df)
+
+
+def _short(name, **test):
+    scn = load_scenario(SCEN / f"{name}.toml")
+    scn.identification = replace(scn.identification, hover_s=2.0, duration_s=8.0, method="mrft-df")
+    if test:
+        scn.test = replace(scn.test, **test)
+    return scn
+
+
+def test_short_flow_and_recording(tmp_path):
+    scn = _short("normal-camera-kf", duration_s=3.0)
+    res = run_scenario(scn, seed=3, workdir=tmp_path)
+    alt = res["loops"]["altitude"]
+    assert set(("T_prop", "T1", "tau", "kp", "kd", "Q_sim")) <= set(alt)
+    assert alt["kp"] > 0 and alt["kd"] > 0 and math.isfinite(alt["Q_mj"])
+    assert Path(alt["session"]).is_dir()
+    assert res["test"]["kind"] == "step"
+    from uavsim.scenario.record import write_recording
+
+    rrd = write_recording(res, tmp_path / "run.rrd", format_table(table_rows([res])))
+    assert rrd.stat().st_size > 1000
+    json.dumps({k: v for k, v in res.items() if not k.startswith("_")})
+
+
+def test_cli_json(tmp_path, capsys, monkeypatch):
+    import argparse
+
+    from uavsim.cli import scenario_cmd
+
+    text = (SCEN / "normal-camera-no-kf.toml").read_text()
+    text = text.replace("duration_s = 8.0\n", "duration_s = 3.0\n")  # the step test
+    text = text.replace("hover_s = 5.0", "hover_s = 2.0").replace("duration_s = 20.0", "duration_s = 8.0")
+    text = text.replace('method = "auto"', 'method = "mrft-df"')
+    f = tmp_path / "quick.toml"
+    f.write_text(text)
+    p = argparse.ArgumentParser()
+    scenario_cmd.register(p.add_subparsers())
+    args = p.parse_args(["scenario", "run", str(f), "--json", "--save", str(tmp_path / "q.rrd")])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1
+    d = json.loads(out[0])
+    assert d["loops"]["altitude"]["identifier"] == "mrft-df"
+    assert (tmp_path / "q.rrd").is_file()
+    bad = p.parse_args(["scenario", "run", str(f), "--save", str(tmp_path / "q.txt")])
+    with pytest.raises(UserError):
+        bad.func(bad)
+
+
+@pytest.mark.slow
+def test_camera_trends():
+    """Paper trends: without KF a longer cycle (more delay) and lower gains; event beats normal without KF."""
+    res = {}
+    for cam in ("normal", "event", "thermal"):
+        for est in ("kf", "no-kf"):
+            r = run_scenario(load_scenario(SCEN / f"{cam}-camera-{est}.toml"))
+            res[cam, est] = r["loops"]["altitude"]
+    for cam in ("normal", "event", "thermal"):
+        assert res[cam, "no-kf"]["relay"]["T0"] > res[cam, "kf"]["relay"]["T0"]
+        assert res[cam, "no-kf"]["kp"] < res[cam, "kf"]["kp"]
+    assert res["event", "no-kf"]["Q_mj"] < res["normal", "no-kf"]["Q_mj"]
+
+
+@pytest.mark.slow
+def test_disturbance_scenarios():
+    pull = run_scenario(load_scenario(SCEN / "pull-release-10n.toml"))["test"]
+    assert pull["stable"] and pull["recovery_s"] is not None
+    ts = run_scenario(load_scenario(SCEN / "target-step.toml"))["test"]
+    assert [s["to"] for s in ts["switches"]][:1] == ["IBVS"]
+    assert ts["final_error_m"] < 0.05

@@ -1,0 +1,149 @@
+"""``uavsim bench generate``: training-set generation throughput against raw MuJoCo stepping.
+
+Measured in one run on the same episodes, so that the ratio does not depend on
+how busy the machine is:
+
+- generation: ``uavsim.data.generate.generate`` on an altitude recipe (a class
+  subset, every noise kind), end to end: planning, NP-MRFT episodes in
+  ``LoopBatch``, preprocessing and the HDF5 write; ``episodes_per_s`` and
+  ``sim_s_per_wall_s`` (simulated seconds per wall second);
+- raw: ``Batch.step`` alone on the same batches (same models, processes,
+  substeps and episode lengths), no controller, no effects, no writing, each
+  batch on all CPUs, both one batch after another and two at a time (as
+  generation runs them); the faster arrangement is the baseline,
+  ``raw_sim_s_per_wall_s``;
+- ``ratio_to_raw`` = generation / raw (goal >= 0.80).
+
+The three are interleaved ``--repeats`` times and each reported figure is the
+best of its repeats (the machine is shared: the best run is the least disturbed).
+
+    uavsim bench generate --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from uavsim.cli._common import eprint, print_json, print_table
+
+BENCH_RECIPE = """\
+# uavsim bench generate: a subset of the altitude grid, every noise kind
+loop = "altitude"
+seed = 3
+classes = {classes}
+
+[test]
+tau_obs = 0.03
+a_n = 1.0
+
+[episodes]
+per_class = {per_class}
+cycles = 6
+dt = 0.001
+rate_hz = 200.0
+chunk = {chunk}
+
+[randomize]
+K = [0.5, 2.0]
+bias = 0.5
+y0 = 0.5
+
+[noise]
+kinds = ["none", "white", "paper", "coloured", "quantization", "outliers"]
+level = [0.0, 0.2]
+"""
+
+
+def _raw_wall(recipe, concurrent: bool) -> float:
+    """Wall seconds of ``Batch.step`` alone over every batch of the recipe's plan.
+
+    ``concurrent``: two batches at a time on a thread pool, longest first, each on all
+    CPUs (how generation schedules them); otherwise one batch after another on all CPUs.
+    """
+    from uavsim.data.generate import load_family_grid, make_plan
+    from uavsim.sim.runner import LoopBatch
+
+    plan = make_plan(recipe, load_family_grid(recipe))
+    batches = []
+    for i, ids in enumerate(plan.chunks):
+        params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e]))
+                  for e in ids]
+        lb = LoopBatch(params, dt=recipe.episodes.dt, rate_hz=recipe.episodes.rate_hz, y0=plan.y0[ids])
+        batches.append((lb, int(round(plan.durations[i] * recipe.episodes.rate_hz))))
+
+    def step(k: int) -> None:
+        lb, T = batches[k]
+        for _ in range(T):
+            lb.batch.step(nstep=lb.rate_steps)
+
+    order = sorted(range(len(batches)), key=lambda k: -batches[k][0].n * batches[k][1])
+    t0 = time.perf_counter()
+    if concurrent:
+        with cf.ThreadPoolExecutor(max_workers=2) as ex:
+            list(ex.map(step, order))
+    else:
+        for k in order:
+            step(k)
+    return time.perf_counter() - t0
+
+
+def bench_generate(n_classes: int = 26, per_class: int = 16, chunk: int = 104, workers: int | None = None,
+                   repeats: int = 2) -> dict:
+    """Generate a bench set and step the same batches raw, interleaved ``repeats`` times.
+
+    Each figure is the best (shortest wall) of its repeats: on a machine shared with
+    other jobs the best run is the one least disturbed, and interleaving exposes
+    generation and raw stepping to the same load.
+    """
+    from uavsim.data.generate import generate
+    from uavsim.data.recipe import parse_recipe
+    from uavsim.tuning.grid import load_grid
+
+    g = load_grid("altitude")
+    step = max(1, g.n // n_classes)
+    classes = list(range(0, g.n, step))[:n_classes]
+    text = BENCH_RECIPE.format(classes=classes, per_class=per_class, chunk=chunk)
+    seq, conc, gen = [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        recipe = parse_recipe(text, str(Path(tmp) / "bench.toml"), "bench")
+        for k in range(max(1, repeats)):
+            seq.append(_raw_wall(recipe, False))
+            s = generate(recipe, Path(tmp) / f"bench{k}.h5", workers=workers, progress=False)
+            gen.append(s)
+            conc.append(_raw_wall(recipe, True))
+    best = min(gen, key=lambda x: x["wall_s"])
+    raw_wall = min(min(seq), min(conc))  # the better arrangement is the baseline
+    raw = best["simulated_s"] / raw_wall
+    return {"episodes": best["episodes_run"], "classes": len(classes), "repeats": len(gen),
+            "simulated_s": best["simulated_s"], "wall_s": best["wall_s"], "wall_s_all": [x["wall_s"] for x in gen],
+            "episodes_per_s": best["episodes_per_s"], "sim_s_per_wall_s": best["sim_s_per_wall_s"],
+            "raw_wall_s": raw_wall, "raw_sequential_wall_s": seq, "raw_concurrent_wall_s": conc,
+            "raw_sim_s_per_wall_s": raw, "ratio_to_raw": best["sim_s_per_wall_s"] / raw,
+            "n_kept": best["n_kept"], "n_rejected": best["n_rejected"], "n_diverged": best["n_diverged"]}
+
+
+def _run(args: argparse.Namespace) -> int:
+    eprint(f"bench generate: {args.classes} altitude classes x {args.per_class} episodes ...")
+    r = bench_generate(args.classes, args.per_class, args.chunk, args.workers, args.repeats)
+    if args.json:
+        print_json(r)
+    else:
+        print_table([{"measure": k, "value": v} for k, v in r.items()])
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("generate", help="dataset generation vs raw MuJoCo stepping", description=__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--classes", type=int, default=26, help="altitude classes (spread over the grid)")
+    p.add_argument("--per-class", dest="per_class", type=int, default=16)
+    p.add_argument("--chunk", type=int, default=104, help="episodes per batch")
+    p.add_argument("--workers", type=int, default=None, help="threads of the generation backend")
+    p.add_argument("--repeats", type=int, default=2, help="interleaved repeats; the best of each is reported")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_run)

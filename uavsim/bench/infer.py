@@ -1,0 +1,176 @@
+"""Benchmark: identification latency (``uavsim bench infer``).
+
+One identification is what ``uavsim identify`` does after reading the session:
+preprocessing of a relay run (``uavsim.data.preprocess.features``: edges, last
+cycle, normalization) plus the exported network (``Predictor``, TorchScript)
+on one input, plus the gain recovery. It is timed ``--reps`` times on a 10 s,
+200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
+with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
+
+The same-run baseline is a bare numpy float32 forward pass of the same layer
+sizes (three matmuls and two ReLUs, no BatchNorm): the floor an implementation
+of this network can reach on this machine. The table gives median and p95 (ms)
+of each stage and the ratio of the whole identification to the baseline.
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 uavsim bench infer --json
+    uavsim bench infer --models training/runs/altitude --reps 500
+
+Run it with one BLAS/OpenMP thread as above: on a shared 2-core machine the
+default thread pools of numpy and torch oversubscribe the cores and the
+medians become 10-30x worse (measured), which says nothing about the method.
+
+Without a trained altitude network (``training/runs/altitude``) a randomly
+initialized network of the same shape is exported to a temporary folder:
+latency does not depend on the weights.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+GOAL_MS = 2.0
+
+
+def _trace(grid, c: int, seconds: float = 10.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    from uavsim.lumped.simulate import simulate_relay_batch
+
+    p = grid.params_of(c)
+    sim = simulate_relay_batch("altitude", grid.beta, 1.0, 0.005, int(seconds * 200), K=1.0, T_prop=p.T_prop,
+                               T1=p.T1, tau=p.tau)
+    rng = np.random.default_rng(seed)
+    y = -sim["e"][0] + 0.05 * grid.amplitude[c] * rng.standard_normal(sim["e"].shape[1])
+    return y, sim["u"][0]
+
+
+def _stats(t: np.ndarray) -> dict[str, float]:
+    return {"median_ms": float(np.median(t) * 1e3), "p95_ms": float(np.percentile(t, 95) * 1e3)}
+
+
+def _model_dir(arg: str | None, tmp: Path) -> tuple[Path, bool]:
+    from uavsim.learning.identify import default_model_root
+
+    if arg:
+        return Path(arg), True
+    d = default_model_root() / "altitude"
+    if (d / "meta.json").is_file():
+        return d, True
+    import torch
+
+    from uavsim.data.preprocess import input_length
+    from uavsim.learning.export import export_model
+    from uavsim.learning.model import IdentNet, NetConfig
+    from uavsim.tuning.grid import load_grid
+
+    g = load_grid("altitude")
+    torch.manual_seed(0)
+    cfg = NetConfig(2, input_length(g), g.n)
+    classes = {k: np.asarray(getattr(g, k)).tolist() for k in ("kp", "kd", "derivative_filter_hz", "amplitude")}
+    classes.update({k: np.asarray(g.params[k]).tolist() for k in ("T_prop", "T1", "tau")})
+    meta = {"loop": "altitude", "grid_hash": g.hash, "beta": g.beta, "channels": 2, "input_length": cfg.input_length,
+            "n_classes": g.n, "cycles": 1, "classes": classes}
+    export_model(IdentNet(cfg).eval(), meta, tmp)
+    return tmp, False
+
+
+def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> dict[str, Any]:
+    """Time preprocessing, network and whole identification; see module docstring."""
+    import torch
+
+    from uavsim.data.preprocess import features
+    from uavsim.learning.export import Predictor
+    from uavsim.learning.identify import identify_arrays
+    from uavsim.tuning.grid import load_grid
+
+    g = load_grid("altitude")
+    c = int(np.argsort(g.period)[g.n // 2])
+    y, u = _trace(g, c)
+    with tempfile.TemporaryDirectory() as tmp:
+        d, trained = _model_dir(models, Path(tmp))
+        pred = Predictor(d, threads=threads)
+        L = pred.input_length
+        W = [np.ascontiguousarray(m.weight.detach().numpy().T) for m in
+             _linear_layers(pred)] if hasattr(pred.module, "layers") else None
+        x0 = features(y, u, 200.0, 1.0, 0.0, L).x
+        for _ in range(20):  # warm-up (TorchScript profiling runs, caches)
+            identify_arrays(y, u, 200.0, 1.0, 0.0, pred, beta=g.beta)
+        t_pre, t_net, t_all, t_base = (np.empty(reps) for _ in range(4))
+        xb = x0.reshape(1, -1).astype(np.float32)
+        if W is not None and W[0].shape[0] != xb.shape[1]:  # period features widen the first layer
+            xb = np.concatenate([xb, np.zeros((1, W[0].shape[0] - xb.shape[1]), np.float32)], axis=1)
+        for i in range(reps):
+            t0 = time.perf_counter()
+            f = features(y, u, 200.0, 1.0, 0.0, L)
+            t1 = time.perf_counter()
+            pred.predict(f.x)
+            t2 = time.perf_counter()
+            identify_arrays(y, u, 200.0, 1.0, 0.0, pred, beta=g.beta)
+            t3 = time.perf_counter()
+            if W is not None:
+                h = xb
+                for j, w in enumerate(W):
+                    h = h @ w
+                    if j < len(W) - 1:
+                        np.maximum(h, 0.0, out=h)
+            t4 = time.perf_counter()
+            t_pre[i], t_net[i], t_all[i], t_base[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3
+    out = {
+        "trained_model": trained, "model_dir": str(d) if trained else "(random weights, same shape)",
+        "input": [pred.channels, L], "n_classes": pred.n_classes, "threads": torch.get_num_threads(), "reps": reps,
+        "preprocess": _stats(t_pre), "network": _stats(t_net), "identification": _stats(t_all),
+        "baseline_numpy_forward": _stats(t_base) if W is not None else None, "goal_ms": GOAL_MS,
+        "blas_threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
+    }
+    if W is not None:
+        out["ratio_identification_to_baseline"] = out["identification"]["median_ms"] / out[
+            "baseline_numpy_forward"]["median_ms"]
+    out["meets_goal"] = out["identification"]["median_ms"] <= GOAL_MS
+    return out
+
+
+def _linear_layers(pred) -> list:
+    """Linear layers of the scripted network, in order (for the numpy baseline's sizes and weights)."""
+    import torch
+
+    mods = []
+    for m in pred.module.layers.children():
+        if isinstance(m, torch.jit.RecursiveScriptModule) and m.original_name == "Linear":
+            mods.append(m)
+    return mods
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("infer", help="identification latency: preprocessing + network, vs a numpy forward pass",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--models", help="exported model folder (default: training/runs/altitude, else random weights)")
+    p.add_argument("--reps", type=int, default=300)
+    p.add_argument("--threads", type=int, default=1, help="torch threads (1: the embedded case)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from uavsim.cli._common import print_json, print_table
+    from uavsim.errors import UserError
+
+    if args.reps < 1 or args.threads < 1:
+        raise UserError("--reps and --threads must be >= 1")
+    out = run_bench(args.models, args.reps, args.threads)
+    if args.json:
+        print_json(out)
+        return 0
+    rows = []
+    for k in ("preprocess", "network", "identification", "baseline_numpy_forward"):
+        if out.get(k):
+            rows.append({"stage": k, **out[k]})
+    print_table(rows)
+    print(f"input {out['input']}, {out['n_classes']} classes, {out['threads']} thread(s), {out['model_dir']}; "
+          f"identification / numpy forward = {out.get('ratio_identification_to_baseline', float('nan')):.2f}; "
+          f"goal <= {GOAL_MS} ms: {'met' if out['meets_goal'] else 'MISSED'}")
+    return 0

@@ -1,0 +1,47 @@
+"""``uavsim identify SESSION``: class, lumped parameters and PD gains from a relay run.
+
+The session needs an np-mrft (or mrft) run at the beta the network was trained
+for. The JSON (``--json``) is that of the session format: ``loop``, ``class``,
+``params`` (K, T_prop, T1, tau), ``gains`` (kp, kd, derivative_filter_hz for the
+identified K), plus ``oscillation`` and ``run``. ``--write-model`` stores the
+identified ``[model]`` in the session (``--force`` replaces an existing one).
+
+    uavsim identify scenarios/sessions/altitude-npmrft --json
+    uavsim identify SESSION --models training/runs/small --write-model
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from uavsim.cli._common import eprint, print_json, print_table
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("identify", help="identify a loop from a session's NP-MRFT run (DNN-NP-MRFT)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("session", help="session folder (or its session.toml)")
+    p.add_argument("--models", help="exported model folder, or a root with altitude/ and attitude/ "
+                                    "(default: $UAVSIM_MODELS or training/runs)")
+    p.add_argument("--run", help="file name of the run to use (default: the first np-mrft run)")
+    p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
+    p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from uavsim.learning.identify import identify_session, write_model
+
+    ans = identify_session(args.session, model_dir=args.models, run=args.run)
+    if args.write_model:
+        folder = write_model(args.session, ans, overwrite=args.force)
+        ans["written"] = str(folder)
+        eprint(f"wrote [model] to {folder}/session.toml")
+    if args.json:
+        print_json(ans)
+        return 0
+    row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
+           "period_s": ans["oscillation"]["period"], "amplitude": ans["oscillation"]["amplitude"]}
+    print_table([row])
+    return 0

@@ -1,0 +1,245 @@
+"""Evaluation of a trained network: held-out sets, off-grid processes, closed-loop criterion.
+
+Three views, from the cheapest to the one that matters:
+
+* **held-out set** (a dataset generated with other seeds): top-1 accuracy and
+  mean / p95 of ``J[predicted, true]`` (``class_metrics``);
+* **off-grid processes**: random processes drawn log-uniformly in the paper's
+  box (not grid points), simulated in MuJoCo through the dataset path
+  (``uavsim.data.generate.simulate_features``: same relay, noise, preprocessing);
+* **closed-loop criterion**: the gains the pipeline picks (class gains scaled by
+  the recovered ``K_hat``) against the tuning rule applied to the *true*
+  process: ISE deterioration ``Q(picked, G) / Q(rule(G), G) - 1`` of a unit step
+  (``uavsim.lumped.ise.step_ise_batch``, exact delays); an unstable loop is
+  ``inf`` and counted. This includes the gain-recovery error, which the
+  normalized J does not see; the normalized J of the predicted class against
+  the true process (``uavsim.tuning.jmatrix.deterioration``) is reported too.
+
+    python -m uavsim.learning.evaluate training/runs/altitude --recipe datasets/altitude.toml --n 300 --json
+    from uavsim.learning.evaluate import evaluate_offgrid
+    res = evaluate_offgrid("training/runs/small", "datasets/small.toml", n=50, seed=11)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from uavsim.errors import UserError
+from uavsim.learning.export import Predictor
+from uavsim.learning.train import class_metrics, load_training_data
+from uavsim.lumped.params import RANGES, LumpedParams
+
+__all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "closed_loop_deterioration",
+           "evaluate_offgrid", "summarize_deterioration"]
+
+
+@dataclass
+class OffGridSpec:
+    """How off-grid processes are drawn.
+
+    Attributes
+    ----------
+    n : int
+        Processes.
+    seed : int
+        Seed of the draw and of the simulation (recorded in the result).
+    K : tuple of float
+        Gain range, log-uniform.
+    chunk : int
+        Episodes per MuJoCo batch.
+    """
+
+    n: int = 300
+    seed: int = 11
+    K: tuple[float, float] = (0.5, 2.0)
+    chunk: int = 100
+
+
+def evaluate_heldout(model_dir: str | os.PathLike, dataset: str | os.PathLike) -> dict[str, Any]:
+    """Top-1 and J metrics of an exported model on a dataset of the same classes."""
+    pred = Predictor(model_dir)
+    data = load_training_data(dataset)
+    if data.attrs.get("grid_hash") != pred.meta.get("grid_hash"):
+        raise UserError(f"{dataset}: grid differs from the model's")
+    gi_m = pred.meta["classes"].get("grid_index")
+    gi_d = data.classes.get("grid_index")
+    if gi_m is not None and gi_d is not None and not np.array_equal(np.asarray(gi_m), np.asarray(gi_d)):
+        raise UserError(f"{dataset}: class subset differs from the model's")
+    cls, _ = pred.predict(data.X)
+    return class_metrics(cls, data.labels, data.J)
+
+
+def random_processes(loop: str, n: int, seed: int, K: tuple[float, float] = (0.5, 2.0)) -> list[LumpedParams]:
+    """``n`` processes log-uniform in the paper's box of ``loop`` (altitude / roll), K log-uniform."""
+    fam = "altitude" if loop == "altitude" else "attitude"
+    rng = np.random.default_rng(seed)
+    box = RANGES[fam]
+    draw = {k: np.exp(rng.uniform(math.log(lo), math.log(hi), n)) for k, (lo, hi) in box.items()}
+    Ks = np.exp(rng.uniform(math.log(K[0]), math.log(K[1]), n))
+    name = "altitude" if fam == "altitude" else "roll"
+    return [LumpedParams(name, float(Ks[i]), float(draw["T_prop"][i]), float(draw["T1"][i]), float(draw["tau"][i]))
+            for i in range(n)]
+
+
+def pipeline_gains(cls: np.ndarray, amplitude: np.ndarray, h: float | np.ndarray, table: dict[str, Any],
+                   corr: np.ndarray | float = 1.0) -> dict[str, np.ndarray]:
+    """Gains identification picks: class gains (K = 1) over ``K_hat = (a / h) / (a_class corr)``.
+
+    ``corr`` is the network's amplitude correction (``Predictor.predict_full``), (m,) or 1.
+    Returns ``K_hat``, ``kp``, ``kd``, ``N`` (rad/s), each (m,).
+    """
+    cls = np.asarray(cls, dtype=np.int64)
+    a_cls = np.asarray(table["amplitude"], float)[cls] * np.asarray(corr, float)
+    K_hat = (np.asarray(amplitude, float) / np.asarray(h, float)) / a_cls
+    return {"K_hat": K_hat, "kp": np.asarray(table["kp"], float)[cls] / K_hat,
+            "kd": np.asarray(table["kd"], float)[cls] / K_hat,
+            "N": 2 * np.pi * np.asarray(table["derivative_filter_hz"], float)[cls]}
+
+
+def closed_loop_deterioration(params: list[LumpedParams], kp: np.ndarray, kd: np.ndarray, N: np.ndarray,
+                              beta: float, pm_deg: float) -> dict[str, np.ndarray]:
+    """Step-ISE deterioration of given PD gains against the rule's gains for each true process.
+
+    Returns ``Q_picked``, ``Q_rule`` (output^2 s), ``deterioration`` (Q_picked / Q_rule - 1; inf if
+    unstable) and ``stable`` (m,) bool.
+    """
+    from uavsim.lumped.ise import step_ise_batch
+    from uavsim.tuning.rule import TuningRule
+
+    fam = params[0].family
+    pa = {k: np.array([getattr(p, k) for p in params], float) for k in ("K", "T_prop", "T1", "tau")}
+    rule = TuningRule(beta, pm_deg).gains_batch(fam, **pa)
+    q_rule = step_ise_batch(fam, rule["kp"], rule["kd"], rule["N"], rule["omega"], **pa)
+    q_pick, stable = step_ise_batch(fam, kp, kd, N, rule["omega"], return_stable=True, **pa)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det = np.where(stable, q_pick / q_rule - 1.0, np.inf)
+    return {"Q_picked": q_pick, "Q_rule": q_rule, "deterioration": det, "stable": stable}
+
+
+def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
+    """Median, p95 and max ISE deterioration (fractions), and the unstable count."""
+    det = np.asarray(det, float)
+    if det.size == 0:
+        return {"n": 0, "median": float("nan"), "p95": float("nan"), "max": float("nan"), "unstable": 0}
+    # unstable loops are inf: rank them above everything without interpolating inf - inf
+    finite = np.where(np.isfinite(det), det, 1e300)
+    p95 = float(np.percentile(finite, 95))
+    return {"n": int(det.size), "median": float(np.median(det)), "p95": p95 if p95 < 1e300 else float("inf"),
+            "max": float(np.max(det)), "unstable": int(np.sum(~np.isfinite(det)))}
+
+
+def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLike, n: int = 300, seed: int = 11,
+                     K: tuple[float, float] = (0.5, 2.0), chunk: int = 100, progress: bool = False) -> dict[str, Any]:
+    """Off-grid random processes through MuJoCo and the whole identification pipeline.
+
+    Parameters
+    ----------
+    model_dir : exported model folder
+    recipe_path : dataset recipe whose test, noise and preprocessing settings the episodes use
+    n, seed, K, chunk : see ``OffGridSpec``
+
+    Returns
+    -------
+    dict: ``n``, ``n_rejected`` (no usable oscillation: not identified), ``seed``,
+    ``deterioration`` (``summarize_deterioration``), ``J`` (normalized J of the predicted class:
+    mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|), ``by_noise`` (median
+    deterioration per noise level band), ``baseline_nearest_period`` (deterioration when the
+    class is the one of nearest exact period and no amplitude correction), ``wall_s``.
+    """
+    from uavsim.data.generate import simulate_features
+    from uavsim.data.recipe import load_recipe
+    from uavsim.tuning.grid import load_grid
+    from uavsim.tuning.jmatrix import deterioration
+
+    t0 = time.perf_counter()
+    pred = Predictor(model_dir)
+    recipe = load_recipe(recipe_path)
+    meta = pred.meta
+    grid = load_grid(meta["loop"])
+    if meta.get("grid_hash") and grid.hash and meta["grid_hash"] != grid.hash:
+        raise UserError(f"{model_dir}: trained on another {meta['loop']} grid than the current one")
+    table = meta["classes"]
+    params = random_processes(meta["loop"], n, seed, K)
+    Xs, amps, oks, levels, pers = [], [], [], [], []
+    for i in range(0, n, chunk):
+        X, per, amp, ok, m = simulate_features(params[i : i + chunk], recipe, seed + 1 + i // chunk)
+        Xs.append(X)
+        pers.append(per)
+        amps.append(amp)
+        oks.append(ok)
+        levels.append(m["noise_level"])
+        if progress:
+            print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    X, amp, ok, level, period = (np.concatenate(v) for v in (Xs, amps, oks, levels, pers))
+    idx = np.flatnonzero(ok)
+    cls, _, corr = pred.predict_full(X[idx])
+    h = recipe.test.h
+    g = pipeline_gains(cls, amp[idx], h, table, corr)
+    used = [params[i] for i in idx]
+    cl = closed_loop_deterioration(used, g["kp"], g["kd"], g["N"], grid.beta, grid.pm_deg)
+    K_true = np.array([p.K for p in used])
+    # normalized J of the predicted class's controller on the true process (no gain error)
+    gi = np.asarray(table.get("grid_index", np.arange(len(table["kp"]))), dtype=np.int64)
+    pa = {k: np.array([getattr(p, k) for p in used]) for k in ("T_prop", "T1", "tau")}
+    from uavsim.lumped.frequency import mrft_prediction_batch
+
+    w_pt, _ = mrft_prediction_batch(grid.loop, grid.beta, 1.0, K=1.0, **pa)
+    Jpc = deterioration(grid.loop, w_pt, grid.omega_df[gi], grid.c1, grid.c3, **pa)  # (n_classes, m)
+    jsel = Jpc[cls, np.arange(len(idx))]
+    det = cl["deterioration"]
+    # same-run baseline: the class of nearest exact period, no correction (what a network must beat)
+    near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
+    gb = pipeline_gains(near, amp[idx], h, table)
+    det_base = closed_loop_deterioration(used, gb["kp"], gb["kd"], gb["N"], grid.beta, grid.pm_deg)["deterioration"]
+    bands = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.15), (0.15, 0.2001)]
+    by_noise = {}
+    for lo, hi in bands:
+        sel = (level[idx] >= lo) & (level[idx] < hi)
+        by_noise[f"{lo:.2f}-{min(hi, 0.2):.2f}"] = summarize_deterioration(det[sel])
+    return {
+        "model": str(model_dir), "recipe": str(recipe_path), "n": n, "n_identified": int(idx.size),
+        "n_rejected": int(n - idx.size), "seed": seed, "K_range": list(K),
+        "noise_level_max": float(np.max(level)) if level.size else 0.0,
+        "deterioration": summarize_deterioration(det),
+        "baseline_nearest_period": summarize_deterioration(det_base),
+        "J": {"mean": float(np.mean(jsel)), "p95": float(np.percentile(jsel, 95))} if jsel.size else {},
+        "K_rel_err": {"median": float(np.median(np.abs(g["K_hat"] / K_true - 1))),
+                      "p95": float(np.percentile(np.abs(g["K_hat"] / K_true - 1), 95))} if idx.size else {},
+        "by_noise": by_noise,
+        "wall_s": time.perf_counter() - t0,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m uavsim.learning.evaluate", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("model_dir")
+    ap.add_argument("--recipe", required=True, help="dataset recipe for the off-grid episodes")
+    ap.add_argument("--heldout", help="held-out dataset (.h5) for top-1 / J metrics")
+    ap.add_argument("--n", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    try:
+        out: dict[str, Any] = {}
+        if args.heldout:
+            out["heldout"] = evaluate_heldout(args.model_dir, args.heldout)
+        out["offgrid"] = evaluate_offgrid(args.model_dir, args.recipe, n=args.n, seed=args.seed, progress=True)
+    except UserError as exc:
+        print(f"evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(out, indent=None if args.json else 1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,631 @@
+"""Training of the DNN-NP-MRFT classifiers from a TOML recipe.
+
+A recipe (``training/*.toml``) names the dataset written by ``uavsim generate``
+(``uavsim-dataset/1`` HDF5, see ``uavsim.data.h5``), the network shape and the
+optimizer. Training follows the authors' code (NOTES.md section 2): Adam, lr
+multiplied by ``lr_decay`` every ``lr_step_epochs``, the J-weighted softmax loss
+(``uavsim.learning.loss``). A seeded ``val_fraction`` of the set is held out for
+early stopping on the validation **mean J** (the closed-loop cost of the
+predicted class for the true one), not on accuracy: two wrong classes are not
+equally wrong.
+
+Every epoch writes ``OUT/checkpoint.pt`` (model, optimizer, schedule, RNG
+states, history; atomically), so ``--resume`` continues exactly where an
+interrupted run stopped. The best epoch is exported to ``OUT/model.pt`` +
+``OUT/meta.json`` (``uavsim.learning.export``) and summarized in
+``OUT/report.json``. Lateral recipes carry ``{att}`` in ``dataset`` and ``out``
+and train one network per attitude class.
+
+    uavsim train training/altitude.toml            # -> training/runs/altitude/
+    uavsim train training/altitude.toml --resume
+
+    from uavsim.learning.train import load_train_recipe, train
+    report = train(load_train_recipe("training/small.toml"))
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from uavsim.errors import UserError
+from uavsim.learning.export import export_model
+from uavsim.learning.loss import J_CLIP, JWeightedLoss
+from uavsim.learning.model import IdentNet, NetConfig
+
+__all__ = [
+    "TRAIN_FORMAT",
+    "TrainRecipe",
+    "TrainData",
+    "load_train_recipe",
+    "load_training_data",
+    "class_metrics",
+    "gain_metrics",
+    "log_amplitude_ratio",
+    "train",
+    "train_from_recipe",
+]
+
+TRAIN_FORMAT = "uavsim-train/1"
+CHECKPOINT = "checkpoint.pt"
+REPORT = "report.json"
+
+
+@dataclass
+class TrainRecipe:
+    """A training recipe (one TOML file).
+
+    Attributes
+    ----------
+    name : str
+        Run name (reports).
+    loop : str
+        ``altitude``, ``attitude`` or ``lateral``.
+    dataset : str
+        Training set path (``{att}`` for lateral recipes); relative paths are
+        relative to the recipe's folder's parent (the repository root for ``training/``).
+    out : str
+        Output folder for checkpoints and the exported model (``{att}`` for lateral).
+    test_dataset : str
+        Optional held-out set generated with other seeds ("" for none).
+    attitude_classes : list of int or None
+        Lateral only: which attitude classes to train (None: every one whose dataset exists).
+    seed : int
+        Seed of the split, initialization, shuffling and dropout.
+    device : str
+        ``auto`` (CUDA when present), ``cpu`` or ``cuda``.
+    threads : int
+        Torch CPU threads (0: all cores).
+    hidden : list of int
+        Hidden widths (paper: 3000, 1000).
+    dropout : float
+    period_features : int
+        Radial-basis features of the cycle length appended to the input (``NetConfig``; 0: the paper's net).
+    gain_head : bool
+        Also learn the amplitude correction for the gain recovery (``NetConfig.gain_head``).
+    gain_weight : float
+        Weight of the gain head's squared error (log amplitude ratio) in the loss.
+    lr : float
+        Adam learning rate.
+    lr_decay : float
+        Factor applied every ``lr_step_epochs``.
+    lr_step_epochs : int
+    batch_size : int
+    epochs : int
+        Maximum epochs.
+    weight_decay : float
+    val_fraction : float
+        Fraction of the set held out for early stopping (stratified by class).
+    patience : int
+        Epochs without a validation mean-J improvement before stopping.
+    min_delta : float
+        Improvement (in mean J) that counts.
+    max_minutes : float
+        Wall-clock budget (0: none); training stops after the epoch that crosses it.
+    source : str
+        Path of the TOML file, for messages.
+    """
+
+    name: str
+    loop: str
+    dataset: str
+    out: str
+    test_dataset: str = ""
+    attitude_classes: list[int] | None = None
+    seed: int = 0
+    device: str = "auto"
+    threads: int = 0
+    hidden: list[int] = field(default_factory=lambda: [3000, 1000])
+    dropout: float = 0.4
+    gain_head: bool = False
+    period_features: int = 0
+    gain_weight: float = 1.0
+    lr: float = 0.01
+    lr_decay: float = 0.7
+    lr_step_epochs: int = 20
+    batch_size: int = 100
+    epochs: int = 100
+    weight_decay: float = 0.0
+    val_fraction: float = 0.15
+    patience: int = 10
+    min_delta: float = 0.0
+    max_minutes: float = 0.0
+    source: str = ""
+
+    def fingerprint(self) -> str:
+        """Hash of everything that changes the result (resume refuses a different recipe)."""
+        d = asdict(self)
+        for k in ("source", "max_minutes", "threads", "device", "epochs", "patience"):
+            d.pop(k)
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+_SECTIONS = {
+    "": ("format", "name", "loop", "dataset", "out", "test_dataset", "attitude_classes", "seed", "device", "threads"),
+    "net": ("hidden", "dropout", "gain_head", "period_features"),
+    "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay", "gain_weight"),
+    "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
+}
+
+
+def load_train_recipe(path: str | os.PathLike, overrides: dict[str, Any] | None = None) -> TrainRecipe:
+    """Read and validate a training recipe; relative paths become absolute.
+
+    ``overrides`` replaces fields after reading (tests, CLI).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"training recipe {p} not found")
+    try:
+        doc = tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{p}: not valid TOML ({exc})") from None
+    flat: dict[str, Any] = {}
+    for key, value in doc.items():
+        if isinstance(value, dict):
+            if key not in _SECTIONS or key == "":
+                raise UserError(f"{p}: unknown section [{key}] (known: {', '.join(s for s in _SECTIONS if s)})")
+            for k, v in value.items():
+                if k not in _SECTIONS[key]:
+                    raise UserError(f"{p}: unknown key {k!r} in [{key}] (known: {', '.join(_SECTIONS[key])})")
+                flat[k] = v
+        elif key in _SECTIONS[""]:
+            flat[key] = value
+        else:
+            raise UserError(f"{p}: unknown key {key!r}")
+    fmt = flat.pop("format", TRAIN_FORMAT)
+    if fmt != TRAIN_FORMAT:
+        raise UserError(f"{p}: format {fmt!r}, expected {TRAIN_FORMAT!r}")
+    for k in ("name", "loop", "dataset", "out"):
+        if k not in flat:
+            raise UserError(f"{p}: missing key {k!r}")
+    flat.update(overrides or {})
+    try:
+        r = TrainRecipe(source=str(p), **flat)
+    except TypeError as exc:
+        raise UserError(f"{p}: {exc}") from None
+    # Paths in training/*.toml are written relative to the repository root.
+    root = p.resolve().parent.parent
+    for k in ("dataset", "out", "test_dataset"):
+        v = getattr(r, k)
+        if v and not Path(v).is_absolute():
+            setattr(r, k, str(root / v))
+    _check_recipe(r)
+    return r
+
+
+def _check_recipe(r: TrainRecipe) -> None:
+    where = r.source or "recipe"
+    if r.loop not in ("altitude", "attitude", "lateral"):
+        raise UserError(f"{where}: loop must be altitude, attitude or lateral, got {r.loop!r}")
+    if r.device not in ("auto", "cpu", "cuda"):
+        raise UserError(f"{where}: device must be auto, cpu or cuda, got {r.device!r}")
+    checks = [
+        ("lr", r.lr > 0), ("lr_decay", 0 < r.lr_decay <= 1), ("lr_step_epochs", r.lr_step_epochs >= 1),
+        ("batch_size", r.batch_size >= 2), ("epochs", r.epochs >= 1), ("dropout", 0 <= r.dropout < 1),
+        ("val_fraction", 0 < r.val_fraction < 1), ("patience", r.patience >= 1), ("max_minutes", r.max_minutes >= 0),
+        ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
+        ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0), ("gain_weight", r.gain_weight >= 0),
+        ("gain_head", isinstance(r.gain_head, bool)), ("period_features", r.period_features >= 0),
+    ]
+    for name, ok in checks:
+        if not ok:
+            raise UserError(f"{where}: invalid {name} = {getattr(r, name)!r}")
+    if r.loop == "lateral" and "{att" not in r.dataset:
+        raise UserError(f"{where}: a lateral recipe needs '{{att}}' in dataset (one network per attitude class)")
+
+
+# ---------------------------------------------------------------- data ------------
+
+
+@dataclass
+class TrainData:
+    """A dataset in memory.
+
+    Attributes
+    ----------
+    X : (N, C, L) float32 preprocessed cycles
+    labels : (N,) int64 classes
+    J : (n, n) float64 relative sensitivity (rows predicted, columns true)
+    attrs : dict of the file's attributes (loop, grid_hash, beta, rate_hz, ...)
+    classes : dict name -> (n,) array (class table: time parameters, gains, amplitude, ...)
+    amplitude : (N,) measured cycle amplitudes (output units) or None
+    K : (N,) true gains or None
+    """
+
+    X: np.ndarray
+    labels: np.ndarray
+    J: np.ndarray
+    attrs: dict[str, Any]
+    classes: dict[str, np.ndarray]
+    amplitude: np.ndarray | None = None
+    K: np.ndarray | None = None
+
+    @property
+    def n_classes(self) -> int:
+        return int(self.J.shape[0])
+
+
+def _attr(v: Any) -> Any:
+    if isinstance(v, bytes):
+        return v.decode()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
+
+
+def load_training_data(path: str | os.PathLike) -> TrainData:
+    """Read a ``uavsim-dataset/1`` file through ``uavsim.data.h5.open_dataset`` (validated).
+
+    Falls back to a minimal reader of the same layout when ``uavsim.data.h5`` is
+    not installed (the dataset module ships separately).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"dataset {p} not found (run `uavsim generate` / `make generate-data` first)")
+    try:
+        from uavsim.data.h5 import open_dataset
+    except ImportError:
+        open_dataset = None
+    if open_dataset is not None:
+        ds = open_dataset(p)
+        attrs = {k: _attr(v) for k, v in dict(ds.attrs).items()}
+        classes = {k: np.asarray(v) for k, v in dict(ds.class_table).items()}
+        X = np.asarray(ds.inputs, dtype=np.float32)
+        labels = np.asarray(ds.labels).astype(np.int64)
+        J = np.asarray(ds.J, dtype=np.float64)
+        amp = np.asarray(ds.amplitude, dtype=np.float64) if getattr(ds, "amplitude", None) is not None else None
+        K = np.asarray(ds.K, dtype=np.float64) if getattr(ds, "K", None) is not None else None
+        close = getattr(ds, "close", None)
+        if callable(close):
+            close()
+    else:  # pragma: no cover - exercised only without uavsim.data.h5
+        import h5py
+
+        with h5py.File(p, "r") as f:
+            if _attr(f.attrs.get("format")) != "uavsim-dataset/1":
+                raise UserError(f"{p}: not a uavsim-dataset/1 file")
+            attrs = {k: _attr(v) for k, v in f.attrs.items()}
+            X = f["inputs"][...].astype(np.float32)
+            labels = f["labels"][...].astype(np.int64)
+            J = f["J"][...].astype(np.float64)
+            classes = {k: f["classes"][k][...] for k in f["classes"]}
+            amp = f["amplitude"][...] if "amplitude" in f else None
+            K = f["K"][...] if "K" in f else None
+    n = J.shape[0]
+    if X.ndim != 3 or labels.shape != (X.shape[0],) or J.shape != (n, n):
+        raise UserError(f"{p}: inconsistent shapes inputs {X.shape}, labels {labels.shape}, J {J.shape}")
+    if labels.size and (labels.min() < 0 or labels.max() >= n):
+        raise UserError(f"{p}: labels outside 0..{n - 1}")
+    if not np.all(np.isfinite(X)):
+        raise UserError(f"{p}: non-finite inputs")
+    return TrainData(X, labels, J, attrs, classes, amp, K)
+
+
+def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str, float]:
+    """Top-1 accuracy and mean / p95 of ``J[pred, true]`` (clipped to [1, 1e3]).
+
+    Parameters
+    ----------
+    pred, true : (N,) int class indices
+    J : (n, n) rows predicted, columns true
+    """
+    pred = np.asarray(pred, dtype=np.int64)
+    true = np.asarray(true, dtype=np.int64)
+    if pred.size == 0:
+        return {"n": 0, "top1": float("nan"), "mean_J": float("nan"), "p95_J": float("nan"), "max_J": float("nan")}
+    j = np.clip(J[pred, true], *J_CLIP)
+    return {
+        "n": int(pred.size),
+        "top1": float(np.mean(pred == true)),
+        "mean_J": float(j.mean()),
+        "p95_J": float(np.percentile(j, 95)),
+        "max_J": float(j.max()),
+    }
+
+
+def log_amplitude_ratio(data: TrainData) -> np.ndarray | None:
+    """Gain-head targets ``log(a / (K h a_class[label]))`` (N,), or None when the set lacks K or amplitude."""
+    if data.K is None or data.amplitude is None or "amplitude" not in data.classes:
+        return None
+    h = float(data.attrs.get("h", 1.0))
+    a_cls = np.asarray(data.classes["amplitude"], float)[data.labels]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.log(np.asarray(data.amplitude, float) / (np.asarray(data.K, float) * h * a_cls))
+    return r if np.all(np.isfinite(r)) else None
+
+
+def gain_metrics(pred: np.ndarray, corr: np.ndarray, amplitude: np.ndarray, K: np.ndarray, h: float,
+                 class_amplitude: np.ndarray) -> dict[str, float]:
+    """Gain recovery error ``|K_hat / K - 1|`` (median, p95) with ``K_hat = (a / h) / (a_class corr)``.
+
+    ``pred`` (N,) predicted classes, ``corr`` (N,) amplitude corrections (1: none), ``amplitude``
+    (N,) measured cycle amplitudes, ``K`` (N,) true gains, ``class_amplitude`` (n,) exact MRFT amplitudes.
+    """
+    if len(pred) == 0:
+        return {"K_err_median": float("nan"), "K_err_p95": float("nan")}
+    K_hat = (np.asarray(amplitude, float) / h) / (np.asarray(class_amplitude, float)[pred] * corr)
+    e = np.abs(K_hat / np.asarray(K, float) - 1.0)
+    return {"K_err_median": float(np.median(e)), "K_err_p95": float(np.percentile(e, 95))}
+
+
+def _split(labels: np.ndarray, frac: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified split: about ``frac`` of each class to validation (at least 1 if the class has 2+)."""
+    rng = np.random.default_rng(seed)
+    tr, va = [], []
+    for c in np.unique(labels):
+        idx = rng.permutation(np.flatnonzero(labels == c))
+        k = int(round(frac * idx.size))
+        if idx.size >= 2:
+            k = min(max(k, 1), idx.size - 1)
+        else:
+            k = 0
+        va.append(idx[:k])
+        tr.append(idx[k:])
+    return np.sort(np.concatenate(tr)), np.sort(np.concatenate(va))
+
+
+# ---------------------------------------------------------------- training --------
+
+
+def _device(name: str) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise UserError("recipe asks for device = 'cuda' but no CUDA device is available")
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    return torch.device(name)
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _predict(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted classes (N,) and amplitude corrections (N,) (1 without a gain head)."""
+    net.eval()
+    n = net.cfg.n_classes
+    cls, corr = [], []
+    with torch.inference_mode():
+        for i in range(0, X.shape[0], batch):
+            out = net(X[i : i + batch].to(device)).float().cpu()
+            cls.append(out[:, :n].argmax(1))
+            corr.append(out[:, n].exp() if net.cfg.gain_head else torch.ones(out.shape[0]))
+    if not cls:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    return torch.cat(cls).numpy(), torch.cat(corr).double().numpy()
+
+
+def _progress(iterable, **kw):
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        return iterable
+    return tqdm(iterable, file=sys.stderr, leave=False, dynamic_ncols=True, disable=kw.pop("quiet", False), **kw)
+
+
+def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[str, Any]:
+    """What identification needs, stored beside the exported network."""
+    a = data.attrs
+    cycles = 1
+    try:  # cycles per input, from the dataset recipe's [preprocess] (identification must use the same)
+        cycles = int(tomllib.loads(str(a.get("recipe", ""))).get("preprocess", {}).get("cycles", 1))
+    except (tomllib.TOMLDecodeError, TypeError, ValueError):
+        pass
+    return {
+        "cycles": int(a.get("cycles_per_input", cycles)),
+        "name": recipe.name,
+        "loop": a.get("loop", recipe.loop),
+        "grid_hash": a.get("grid_hash", ""),
+        "beta": a.get("beta"),
+        "h": a.get("h", 1.0),
+        "rate_hz": a.get("rate_hz"),
+        "channels": cfg.channels,
+        "input_length": cfg.input_length,
+        "n_classes": cfg.n_classes,
+        "net": cfg.as_dict(),
+        "classes": {k: np.asarray(v).tolist() for k, v in data.classes.items()},
+        "dataset": {"path": recipe.dataset, "seed": a.get("seed"), "recipe": a.get("recipe")},
+        "seed": recipe.seed,
+        "recipe_fingerprint": recipe.fingerprint(),
+    }
+
+
+def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData, device: torch.device,
+                 h: float) -> dict[str, float]:
+    pred, corr = _predict(net, X, device)
+    m = class_metrics(pred, data.labels[idx], data.J)
+    if data.K is not None and data.amplitude is not None and "amplitude" in data.classes:
+        m.update(gain_metrics(pred, corr, data.amplitude[idx], data.K[idx], h, data.classes["amplitude"]))
+    return m
+
+
+def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dict[str, Any]:
+    """Train one network (non-lateral recipe, or a lateral one with ``{att}`` filled in).
+
+    Returns
+    -------
+    dict
+        The report written to ``OUT/report.json``: epochs, wall time (s), best
+        epoch, validation and test metrics (``class_metrics``), paths.
+    """
+    if "{att" in recipe.dataset:
+        raise UserError("lateral recipes train one network per attitude class: use train_from_recipe")
+    out = Path(recipe.out)
+    out.mkdir(parents=True, exist_ok=True)
+    data = load_training_data(recipe.dataset)
+    N, C, L = data.X.shape
+    if N < 2 * data.n_classes and N < 10:
+        raise UserError(f"{recipe.dataset}: only {N} samples for {data.n_classes} classes")
+    seed = int(recipe.seed)
+    torch.manual_seed(seed)
+    if recipe.threads:
+        torch.set_num_threads(recipe.threads)
+    device = _device(recipe.device)
+    tr_idx, va_idx = _split(data.labels, recipe.val_fraction, seed)
+    ratio = log_amplitude_ratio(data)
+    if recipe.gain_head and ratio is None:
+        raise UserError(f"{recipe.dataset}: gain_head needs K and amplitude for every sample; set gain_head = false")
+    use_gain = bool(recipe.gain_head)
+    h = float(data.attrs.get("h", 1.0))
+    Xtr = torch.from_numpy(data.X[tr_idx])
+    ytr = torch.from_numpy(data.labels[tr_idx])
+    rtr = torch.from_numpy((ratio if use_gain else np.zeros(len(data.labels)))[tr_idx].astype(np.float32))
+    Xva = torch.from_numpy(data.X[va_idx])
+    if device.type == "cuda":
+        Xtr, ytr, rtr = Xtr.to(device), ytr.to(device), rtr.to(device)
+
+    cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout, use_gain, recipe.period_features)
+    n_cls = data.n_classes
+    net = IdentNet(cfg).to(device)
+    loss_fn = JWeightedLoss(data.J).to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=recipe.lr_step_epochs, gamma=recipe.lr_decay)
+    gen = torch.Generator().manual_seed(seed)
+
+    history: list[dict[str, float]] = []
+    start_epoch, elapsed = 0, 0.0
+    best = {"mean_J": math.inf, "epoch": -1}
+    best_state: dict[str, torch.Tensor] | None = None
+    ck_path = out / CHECKPOINT
+    if resume and ck_path.is_file():
+        ck = torch.load(ck_path, map_location=device, weights_only=False)
+        if ck.get("fingerprint") != recipe.fingerprint():
+            raise UserError(f"{ck_path} was written by a different recipe; remove it or train without --resume")
+        net.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optim"])
+        sched.load_state_dict(ck["sched"])
+        gen.set_state(ck["gen"])
+        torch.set_rng_state(ck["torch_rng"])
+        history, best, elapsed = ck["history"], ck["best"], ck["elapsed"]
+        best_state = ck["best_state"]
+        start_epoch = ck["epoch"] + 1
+        if not quiet:
+            print(f"resuming {recipe.name} at epoch {start_epoch} (best mean J {best['mean_J']:.4f})", file=sys.stderr)
+    elif resume and not quiet:
+        print(f"no checkpoint at {ck_path}: starting from scratch", file=sys.stderr)
+
+    stale = len(history) - 1 - best["epoch"] if best["epoch"] >= 0 else 0
+    stopped = "epochs"
+    t0 = time.perf_counter() - elapsed
+    for epoch in range(start_epoch, recipe.epochs):
+        if stale >= recipe.patience:
+            stopped = "early_stopping"
+            break
+        if recipe.max_minutes and (time.perf_counter() - t0) > 60 * recipe.max_minutes:
+            stopped = "max_minutes"
+            break
+        net.train()
+        perm = torch.randperm(Xtr.shape[0], generator=gen)
+        nb = max(1, Xtr.shape[0] // recipe.batch_size)  # drop the ragged last batch (BatchNorm needs > 1)
+        total = 0.0
+        bar = _progress(range(nb), desc=f"{recipe.name} epoch {epoch + 1}/{recipe.epochs}", quiet=quiet)
+        for b in bar:
+            idx = perm[b * recipe.batch_size : (b + 1) * recipe.batch_size]
+            xb, yb = Xtr[idx].to(device, non_blocking=True), ytr[idx].to(device, non_blocking=True)
+            opt.zero_grad(set_to_none=True)
+            out_b = net(xb)
+            loss = loss_fn(out_b[:, :n_cls], yb)
+            if use_gain:
+                loss = loss + recipe.gain_weight * torch.mean((out_b[:, n_cls] - rtr[idx].to(device)) ** 2)
+            loss.backward()
+            opt.step()
+            total += float(loss.detach())
+        sched.step()
+        vm = _val_metrics(net, Xva, va_idx, data, device, h)
+        rec = {"epoch": epoch, "loss": total / nb, "lr": opt.param_groups[0]["lr"], **{f"val_{k}": v for k, v in vm.items()},
+               "elapsed_s": time.perf_counter() - t0}
+        history.append(rec)
+        # mean J decides; on a tie (a solved set) the gain error breaks it, so a gain head keeps learning
+        tie = abs(vm["mean_J"] - best["mean_J"]) <= 1e-9
+        if vm["mean_J"] < best["mean_J"] - recipe.min_delta or (
+                tie and use_gain and vm.get("K_err_median", math.inf) < best.get("val_K_err_median", math.inf)):
+            best = {"mean_J": vm["mean_J"], "epoch": epoch, **{f"val_{k}": v for k, v in vm.items()}}
+            best_state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
+            stale = 0
+        else:
+            stale += 1
+        if not quiet:
+            print(f"{recipe.name} epoch {epoch + 1}: loss {rec['loss']:.4f}  val top1 {vm['top1']:.3f}  "
+                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  K err median {vm.get('K_err_median', 0):.3f}  "
+                  f"({rec['elapsed_s']:.0f} s)", file=sys.stderr)
+        _atomic_save({
+            "fingerprint": recipe.fingerprint(), "epoch": epoch, "model": net.state_dict(), "optim": opt.state_dict(),
+            "sched": sched.state_dict(), "gen": gen.get_state(), "torch_rng": torch.get_rng_state(),
+            "history": history, "best": best, "best_state": best_state, "elapsed": time.perf_counter() - t0,
+            "net": cfg.as_dict(),
+        }, ck_path)
+    train_s = time.perf_counter() - t0
+    if best_state is None:
+        raise UserError(f"{recipe.name}: no epoch finished")
+    net.load_state_dict(best_state)
+    net.cpu()
+    meta = _class_meta(data, recipe, cfg)
+    meta.update({"best_epoch": best["epoch"], "val": {k[4:]: v for k, v in best.items() if k.startswith("val_")}})
+    export_model(net, meta, out)
+
+    report: dict[str, Any] = {
+        "name": recipe.name, "loop": meta["loop"], "n_classes": cfg.n_classes, "n_train": int(tr_idx.size),
+        "n_val": int(va_idx.size), "input": [C, L], "epochs_run": len(history), "stopped": stopped,
+        "best_epoch": best["epoch"], "train_time_s": train_s, "device": device.type,
+        "threads": torch.get_num_threads(), "seed": seed, "val": meta["val"], "out": str(out),
+        "dataset": recipe.dataset,
+    }
+    if recipe.test_dataset and not Path(recipe.test_dataset).is_file():
+        # a missing held-out set must not throw away a finished training run
+        print(f"warning: held-out set {recipe.test_dataset} not found; no test metrics", file=sys.stderr)
+    elif recipe.test_dataset:
+        test = load_training_data(recipe.test_dataset)
+        if test.attrs.get("grid_hash") != data.attrs.get("grid_hash"):
+            raise UserError(f"{recipe.test_dataset}: grid differs from the training set's")
+        gi, gt = data.classes.get("grid_index"), test.classes.get("grid_index")
+        if gi is not None and gt is not None and not np.array_equal(gi, gt):
+            raise UserError(f"{recipe.test_dataset}: class subset differs from the training set's")
+        report["test"] = _val_metrics(net, torch.from_numpy(test.X), np.arange(len(test.labels)), test,
+                                      torch.device("cpu"), float(test.attrs.get("h", 1.0)))
+        report["test_dataset"] = recipe.test_dataset
+    Path(out / REPORT).write_text(json.dumps(report, indent=1))
+    return report
+
+
+def train_from_recipe(path: str | os.PathLike, resume: bool = False, quiet: bool = False,
+                      overrides: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """Train every network of a recipe (one, or one per attitude class for lateral); return the reports."""
+    r = load_train_recipe(path, overrides)
+    if "{att" not in r.dataset:
+        return [train(r, resume=resume, quiet=quiet)]
+    from uavsim.tuning.grid import load_grid
+
+    n_att = load_grid("attitude").n
+    classes = r.attitude_classes if r.attitude_classes is not None else list(range(n_att))
+    reports = []
+    for a in classes:
+        ds = r.dataset.format(att=a)
+        if r.attitude_classes is None and not Path(ds).is_file():
+            continue
+        sub = TrainRecipe(**{**asdict(r), "name": f"{r.name}-att{a:02d}", "dataset": ds, "out": r.out.format(att=a),
+                             "test_dataset": r.test_dataset.format(att=a) if r.test_dataset else ""})
+        reports.append(train(sub, resume=resume, quiet=quiet))
+    if not reports:
+        raise UserError(f"{r.source}: no lateral dataset matches {r.dataset} (lateral grids and data come first)")
+    return reports

@@ -1,0 +1,1 @@
+"""Visual-servoing scenarios (issue 7)."""
