@@ -64,7 +64,11 @@ replay: $(STAMP)
 	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
 
 generate-data: $(STAMP)
-	@for l in $(LOOPS); do $(BIN)/uavsim generate datasets/$$l.toml --out datasets/$$l.h5 || exit $$?; done
+	@for l in $(LOOPS); do \
+	  test -f datasets/$$l.toml || { echo "make generate-data: no recipe datasets/$$l.toml"; exit 2; }; \
+	  $(BIN)/uavsim generate datasets/$$l.toml --out datasets/$$l.h5 || exit $$?; \
+	  if [ -f datasets/$$l-test.toml ]; then $(BIN)/uavsim generate datasets/$$l-test.toml --out datasets/$$l-test.h5 || exit $$?; fi; \
+	done
 
 train: $(STAMP)
 	@for l in $(LOOPS); do $(BIN)/uavsim train training/$$l.toml || exit $$?; done

@@ -1,1 +1,46 @@
-"""TODO"""
+"""The sim-vs-measured gap workflow (issue 9): which physical effect does the model lack?
+
+``run_gap`` simulates every run of a flight session on the MuJoCo loop with
+the session's model and the session's controller semantics, compares measured
+and simulated runs on features that separate effects (period, amplitude,
+offset, asymmetry, harmonics, waveform shape, residual spectrum, staircase
+levels, step metrics; per run, so amplitude and frequency dependence show),
+fits every effect of the vocabulary by batched grid search, and names the
+one that closes the gap -- or ``none``.
+
+Modules: :mod:`~uavsim.gap.features` (features, z-scores, the gap),
+:mod:`~uavsim.gap.simulate` (sessions on ``LoopBatch``),
+:mod:`~uavsim.gap.vector_effects` (per-episode effects for batched fits),
+:mod:`~uavsim.gap.workflow` (fit, rank, decide), :mod:`~uavsim.gap.report`
+(plots, Rerun recording, updated model), :mod:`~uavsim.gap.hidden`
+(hidden-effect sessions for tests and ``uavsim bench gap``).
+
+    from uavsim.formats import read_session
+    from uavsim.gap import run_gap, format_table, write_report
+
+    session = read_session("flights/thermal_kf")
+    result = run_gap(session, seed=0)
+    print(format_table(result))            # effect, params, gap before/after, ranking, where they disagree
+    write_report(session, result, "reports/thermal_kf")
+"""
+
+from uavsim.gap.report import model_toml, write_report
+from uavsim.gap.workflow import (
+    CANDIDATES,
+    GapResult,
+    format_table,
+    read_model_file,
+    run_gap,
+    updated_session,
+)
+
+__all__ = [
+    "CANDIDATES",
+    "GapResult",
+    "format_table",
+    "model_toml",
+    "read_model_file",
+    "run_gap",
+    "updated_session",
+    "write_report",
+]

@@ -172,7 +172,11 @@ class VecMeasurement(SignalEffect):
 
 
 def batch_effects(
-    names: Sequence[str], values: Sequence[float], noise_std: float | np.ndarray, rate_hz: float
+    names: Sequence[str],
+    values: Sequence[float],
+    noise_std: float | np.ndarray,
+    rate_hz: float,
+    base: dict[str, float] | None = None,
 ) -> list[Effect]:
     """Effects for a batch whose episode ``i`` has the effect ``names[i]`` at ``values[i]``.
 
@@ -186,6 +190,9 @@ def batch_effects(
         The model's measurement noise, output units.
     rate_hz : float
         Control rate, Hz.
+    base : dict of str to float, optional
+        Effects every episode has (the session's ``[[effects]]``), name -> value;
+        an episode's own effect of the same name replaces it.
 
     Returns
     -------
@@ -195,6 +202,8 @@ def batch_effects(
     n = len(names)
     par = {k: np.full(n, v, dtype=np.float64) for k, v in IDENTITY.items()}
     par["sample_hold"][:] = rate_hz
+    for name, v in (base or {}).items():
+        par[name][:] = float(v)
     for i, (name, v) in enumerate(zip(names, values, strict=True)):
         if name != "none":
             par[name][i] = float(v)

@@ -1,0 +1,252 @@
+"""Features of a run that separate the effects a model may lack, and the gap between two runs.
+
+Relay runs (np-mrft, mrft), over the full cycles after the first two (rising
+edges of the relay output ``u``, which is noise-free):
+
+* ``period`` (log), ``amplitude`` (log), ``offset`` (mean of y / amplitude),
+  ``duty`` (fraction of the cycle with the relay high: asymmetry),
+* ``phase1`` (phase of y's fundamental against the relay's rising edge, rad),
+  ``h2``, ``h3`` (2nd and 3rd harmonic over the fundamental),
+* ``shape`` (RMS difference of the mean cycle waveform, normalized by amplitude:
+  a distance, only defined between two runs),
+* residual spectrum: ``resid`` (log of a robust std of the second difference
+  of y minus its mean cycle, over the amplitude), ``ac1`` (lag-1
+  autocorrelation of that second difference: low-pass and hold colour it), ``repeat`` (fraction of samples equal to the previous one:
+  staircase levels of quantization and sample-and-hold).
+
+Step runs, after ``step_time`` and normalized by the step size:
+``overshoot``, ``rise`` (log 10-90% rise time), ``ise`` (log), ``settled``
+(mean error over the last 30%), ``trace`` (RMS difference of the smoothed
+responses: a distance), and the same residual features on the last 40%.
+
+Dependence on amplitude and on frequency comes from comparing runs with
+different ``h`` and ``beta``: each run's features are compared separately, so
+an effect that acts at one h (saturation, dead zone) or one frequency shows in
+that run only. :func:`compare` turns two sets of features into z-scores, one
+per (run, feature), each divided by a scale that is what noise explains (a
+floor, plus the spread across simulated noise seeds); the gap is the RMS of
+the z-scores.
+
+    fm = run_features(spec, t, y, u, rate_hz)      # measured
+    fs = run_features(spec, t, ys, us, rate_hz)    # simulated
+    z = compare([fm], [fs], scales)                # {(run, feature): z}
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from uavsim.formats.session import RunSpec
+from uavsim.noise.analysis import relay_phase
+
+__all__ = ["FLOORS", "DISTANCES", "run_features", "compare", "gap_value", "worst_window"]
+
+# Smallest scale of each feature (what a perfect model still misses: sampling
+# of the switching at the control rate, finite record), in feature units.
+FLOORS: dict[str, float] = {
+    "period": 0.01, "amplitude": 0.02, "offset": 0.02, "duty": 0.01, "phase1": 0.03,
+    "h2": 0.01, "h3": 0.01, "shape": 0.03, "resid": 0.08, "ac1": 0.05, "repeat": 0.02,
+    "overshoot": 0.02, "rise": 0.04, "ise": 0.05, "settled": 0.01, "trace": 0.03,
+}  # fmt: skip
+# Features that are distances between two runs (need both waveforms), not values.
+DISTANCES = ("shape", "trace")
+_NPHASE = 64
+
+
+def _resid_features(x: np.ndarray, resid: np.ndarray, scale: float) -> dict[str, float]:
+    """Residual-spectrum features of a stretch ``x`` (output units) and its residual ``resid``.
+
+    The level is a robust std of the residual's second difference (MAD, so that
+    the few samples around relay switches and hops between neighbouring
+    quantized orbits do not count), divided by sqrt(6) as for white noise;
+    ``ac1`` is the lag-1 autocorrelation of that second difference (-2/3 for
+    white noise, other values for coloured or held noise).
+    """
+    d2 = np.diff(resid, 2)
+    if d2.size < 4:
+        return {"resid": 0.0, "ac1": 0.0, "repeat": 0.0}
+    med = np.median(d2)
+    mad = 1.4826 * float(np.median(np.abs(d2 - med)))
+    sd = mad / math.sqrt(6.0)
+    c = np.clip(d2 - med, -5 * mad - 1e-300, 5 * mad + 1e-300)
+    c = c - c.mean()
+    ac1 = float(np.dot(c[1:], c[:-1]) / max(np.dot(c, c), 1e-300))
+    rep = float(np.mean(x[1:] == x[:-1])) if x.size > 1 else 0.0
+    return {"resid": math.log(max(sd / scale, 1e-9)), "ac1": ac1, "repeat": rep}
+
+
+def relay_features(t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
+    """Features of a relay run; None when it holds fewer than 3 full cycles after the first two."""
+    hi = relay_phase(u)
+    edges = np.flatnonzero(hi[1:] & ~hi[:-1]) + 1
+    edges = edges[2:]
+    if edges.size < 4 or not np.isfinite(y).all():
+        return None
+    a, b = edges[0], edges[-1]
+    nc = edges.size - 1
+    period = float((t[b] - t[a]) / nc)
+    amps = [0.5 * (y[i:j].max() - y[i:j].min()) for i, j in zip(edges[:-1], edges[1:], strict=True)]
+    amp = float(np.mean(amps))
+    if not amp > 0:
+        return None
+    mean = float(y[a:b].mean())
+    duty = float(hi[a:b].mean())
+    # mean cycle waveform on a phase grid (cycles of unequal length resampled)
+    ph = np.linspace(0.0, 1.0, _NPHASE, endpoint=False)
+    waves = []
+    phase_all = np.empty(b - a)
+    for i, j in zip(edges[:-1], edges[1:], strict=True):
+        tp = (np.arange(i, j) - i) / (j - i)
+        phase_all[i - a:j - a] = tp
+        waves.append(np.interp(ph, tp, y[i:j], period=1.0))
+    w = np.mean(waves, axis=0)
+    wn = (w - mean) / amp
+    c = np.fft.rfft(wn) / _NPHASE
+    c1 = abs(c[1]) + 1e-12
+    resid = y[a:b] - np.interp(phase_all, ph, w, period=1.0)
+    f = {
+        "period": math.log(period), "amplitude": math.log(amp), "offset": mean / amp, "duty": duty,
+        "phase1": float(np.angle(c[1])), "h2": float(abs(c[2]) / c1), "h3": float(abs(c[3]) / c1),
+    }  # fmt: skip
+    f.update(_resid_features(y[a:b], resid, amp))
+    f["_wave"] = wn
+    f["_cycles"] = nc
+    return f
+
+
+def _smooth(x: np.ndarray, n: int = 5) -> np.ndarray:
+    k = np.ones(n) / n
+    return np.convolve(np.pad(x, (n // 2, n - 1 - n // 2), mode="edge"), k, mode="valid")
+
+
+def step_features(spec: RunSpec, t: np.ndarray, y: np.ndarray) -> dict | None:
+    """Features of a step run; None when the record is not finite or ends before the step."""
+    S = float(spec.step)
+    k0 = int(np.searchsorted(t, float(spec.step_time) - 1e-9))
+    if not np.isfinite(y).all() or k0 >= t.size - 10 or S == 0:
+        return None
+    ys = _smooth(y[k0:]) / S
+    tt = t[k0:] - t[k0]
+    e = 1.0 - ys
+
+    def cross(level: float) -> float:
+        i = np.flatnonzero(ys >= level)
+        return float(tt[i[0]]) if i.size else float(tt[-1] * 2)
+
+    rise = max(cross(0.9) - cross(0.1), 1.0 / max(len(tt), 1))
+    dt = float(t[1] - t[0])
+    n = ys.size
+    tail = slice(int(0.6 * n), n)
+    f = {
+        "overshoot": float(ys.max() - 1.0), "rise": math.log(rise), "ise": math.log(max(float(np.sum(e * e) * dt), 1e-12)),
+        "settled": float(e[int(0.7 * n):].mean()),
+    }  # fmt: skip
+    yt = y[k0:][tail]
+    f.update(_resid_features(yt, yt, abs(S)))
+    f["_trace"] = ys
+    return f
+
+
+def run_features(spec: RunSpec, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
+    """Features of one run (see the module docstring); None when it cannot be analysed."""
+    t, y, u = (np.asarray(v, dtype=np.float64) for v in (t, y, u))
+    if spec.kind == "step":
+        return step_features(spec, t, y)
+    return relay_features(t, y, u)
+
+
+def _dist(fm: dict, fs: dict, name: str) -> float:
+    if name == "shape":
+        d = fm["_wave"] - fs["_wave"]
+    else:
+        a, b = fm["_trace"], fs["_trace"]
+        m = min(a.size, b.size)
+        d = a[:m] - b[:m]
+    return float(np.sqrt(np.mean(d * d)))
+
+
+def _names(f: dict) -> list[str]:
+    names = [k for k in f if not k.startswith("_")]
+    names += ["shape"] if "_wave" in f else ["trace"]
+    return names
+
+
+def compare(meas: Sequence[dict | None], sim: Sequence[dict | None],
+            scales: Sequence[dict[str, float]] | None = None) -> dict[tuple[int, str], float]:
+    """z-score of every (run, feature) between measured and simulated features.
+
+    Parameters
+    ----------
+    meas, sim : sequences of feature dicts (or None), one per run
+    scales : per run, feature -> extra scale from noise (added in quadrature to :data:`FLOORS`)
+
+    Returns
+    -------
+    dict (run, feature) -> z
+        Signed for value features, >= 0 for distances. A run that the
+        simulation cannot analyse (no oscillation, diverged) while the
+        measurement can scores 30 on its ``period``.
+    """
+    z: dict[tuple[int, str], float] = {}
+    for i, (fm, fs) in enumerate(zip(meas, sim, strict=True)):
+        if fm is None:
+            continue
+        if fs is None:
+            z[(i, "period")] = 30.0
+            continue
+        sc = scales[i] if scales is not None and scales[i] is not None else {}
+        for name in _names(fm):
+            s = math.hypot(FLOORS[name], sc.get(name, 0.0))
+            if name in DISTANCES:
+                z[(i, name)] = _dist(fm, fs, name) / s
+            else:
+                d = fm[name] - fs[name]
+                if name == "phase1":
+                    d = (d + math.pi) % (2 * math.pi) - math.pi
+                z[(i, name)] = d / s
+    return z
+
+
+def noise_scales(sims_by_seed: Sequence[Sequence[dict | None]]) -> list[dict[str, float]]:
+    """Per run, the spread of each feature across simulated noise seeds (distances: mean pairwise).
+
+    Parameters
+    ----------
+    sims_by_seed : sequence over seeds of sequences over runs of feature dicts
+    """
+    nruns = len(sims_by_seed[0])
+    out: list[dict[str, float]] = []
+    for i in range(nruns):
+        fs = [s[i] for s in sims_by_seed if s[i] is not None]
+        sc: dict[str, float] = {}
+        if len(fs) >= 2:
+            for name in _names(fs[0]):
+                if name in DISTANCES:
+                    ds = [_dist(a, b, name) for j, a in enumerate(fs) for b in fs[j + 1:]]
+                    sc[name] = float(np.mean(ds))
+                else:
+                    sc[name] = float(np.std([f[name] for f in fs], ddof=1))
+        out.append(sc)
+    return out
+
+
+def gap_value(z: dict[tuple[int, str], float]) -> float:
+    """The gap: RMS of the z-scores (about 1 when only noise separates the runs)."""
+    if not z:
+        return float("inf")
+    v = np.array(list(z.values()), dtype=np.float64)
+    return float(np.sqrt(np.mean(v * v)))
+
+
+def worst_window(t: np.ndarray, y_meas: np.ndarray, y_sim: np.ndarray, width_s: float) -> tuple[float, float]:
+    """Time window (start, end), s, of width ``width_s`` where the measured and simulated runs differ most."""
+    d = np.abs(np.asarray(y_meas) - np.asarray(y_sim))
+    d = np.where(np.isfinite(d), d, np.nanmax(np.where(np.isfinite(d), d, 0.0)) + 1.0)
+    rate = 1.0 / float(t[1] - t[0])
+    n = max(1, min(int(round(width_s * rate)), d.size))
+    c = np.convolve(d, np.ones(n), mode="valid")
+    k = int(np.argmax(c))
+    return float(t[k]), float(t[min(k + n - 1, t.size - 1)])

@@ -1,0 +1,449 @@
+"""The sim-vs-measured gap workflow: which effect does the model lack?
+
+1. **Gap before.** Every run of the session is simulated on the MuJoCo loop
+   with the session's ``[model]`` (and its ``[[effects]]``), the run's own
+   controller and the model's noise, with several noise seeds. Each run is
+   reduced to features (:mod:`uavsim.gap.features`), measured and simulated
+   features are turned into z-scores scaled by what noise explains, and the
+   gap is their RMS (about 1 or less when only noise separates them).
+2. **Candidates.** Every vocabulary effect has one parameter. A coarse
+   log-spaced grid of each (scaled to the session: period, relay amplitudes,
+   oscillation amplitude, noise level) is simulated in *one* batch, then the
+   best three candidates get a finer grid around their best value. The best
+   value is refined by a parabola through the three best grid points (in the
+   parameter's log). Each candidate's score is its remaining gap plus a
+   complexity penalty of :data:`PENALTY` per parameter.
+3. **Decision.** ``none`` when the gap before is within what noise explains
+   (:data:`NONE_GAP`), when no candidate's score beats it, or when the best
+   candidate leaves more than :data:`NAME_RATIO` of it (no single effect of
+   the vocabulary explains the gap; rare noise-triggered relay orbits also
+   land here); otherwise the best-scoring candidate. Its fitted model is re-simulated with fresh seeds
+   to give the gap after.
+
+    result = run_gap(read_session("flights/thermal_kf"))
+    result.effect, result.params, result.gap_before, result.gap_after
+    print(format_table(result))
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from uavsim.errors import UserError
+from uavsim.formats.session import (
+    EFFECT_PARAMS,
+    EffectSpec,
+    ModelSpec,
+    Session,
+    SessionError,
+    validate_model,
+)
+from uavsim.gap.features import compare, gap_value, noise_scales, run_features, worst_window
+from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
+
+__all__ = ["CANDIDATES", "GapResult", "run_gap", "format_table", "read_model_file", "candidate_grid"]
+
+#: candidate effects, in the vocabulary's order
+CANDIDATES = tuple(n for n in EFFECT_PARAMS if n != "none")
+#: score added per fitted parameter (in gap units)
+PENALTY = 0.25
+#: a gap at or below this is what noise explains: the answer is ``none``
+NONE_GAP = 1.5
+#: an effect is named only if its gap is at most this fraction of the gap before
+NAME_RATIO = 0.4
+#: noise seeds for the gap before and after
+SEEDS = 3
+
+
+@dataclass
+class Disagreement:
+    """Where measurement and model disagree: one (run, feature) with its z-score and worst window."""
+
+    run: str
+    feature: str
+    z: float
+    window_s: tuple[float, float]
+
+
+@dataclass
+class GapResult:
+    """Answer of the gap workflow.
+
+    Attributes
+    ----------
+    effect : str
+        The winner (``"none"`` when noise explains the gap).
+    params : dict of str to float
+        Its fitted parameters (vocabulary units).
+    gap_before, gap_after : float
+        RMS z-score of the features, session model vs. with the winner.
+    ranking : list of dict
+        ``{"effect", "params", "gap", "score"}`` per candidate, best first (``none`` included).
+    disagreements : list of Disagreement
+        The largest z-scores of the gap before.
+    model : ModelSpec
+        The model the session was simulated with.
+    effects : list of EffectSpec
+        The updated model's effects (the session's plus the winner).
+    seed : int
+    seconds : float
+    sims_before, sims_after : per run, the seed-0 simulation (for plots)
+    """
+
+    effect: str
+    params: dict[str, float]
+    gap_before: float
+    gap_after: float
+    ranking: list[dict]
+    disagreements: list[Disagreement]
+    model: ModelSpec
+    effects: list[EffectSpec]
+    seed: int
+    seconds: float
+    sims_before: list[SimRun] = field(default_factory=list, repr=False)
+    sims_after: list[SimRun] = field(default_factory=list, repr=False)
+
+    def to_json(self) -> dict:
+        """The spec's JSON answer (effect, params, gap_before, gap_after, ranking) plus details."""
+        return {
+            "effect": self.effect,
+            "params": self.params,
+            "gap_before": self.gap_before,
+            "gap_after": self.gap_after,
+            "ranking": self.ranking,
+            "disagreements": [dataclasses.asdict(d) for d in self.disagreements],
+            "model": dataclasses.asdict(self.model),
+            "effects": [{"name": e.name, **e.params} for e in self.effects],
+            "seed": self.seed,
+            "seconds": self.seconds,
+        }
+
+
+def read_model_file(path: str | Path, loop: str) -> ModelSpec:
+    """Read a model TOML (a ``[model]`` table, or its keys at top level) and check it for ``loop``."""
+    p = Path(path)
+    where = str(p)
+    try:
+        doc = tomllib.loads(p.read_text())
+    except OSError as exc:
+        raise UserError(f"{where}: cannot read the model file ({exc.strerror or exc})") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{where}: not valid TOML ({exc})") from None
+    table = doc.get("model", doc)
+    if not isinstance(table, dict):
+        raise UserError(f"{where}: [model] must be a table")
+    keys = ("K", "T_prop", "T1", "T2", "tau", "noise_std")
+    extra = [k for k in table if k not in keys]
+    if extra:
+        raise UserError(f"{where}: unknown model key {extra[0]!r} (expected {', '.join(keys)})")
+    model = ModelSpec(**{k: table.get(k) for k in keys if k in table})
+    if model.noise_std is None:
+        model.noise_std = 0.0
+    validate_model(model, loop, where)
+    return model
+
+
+def _session_scales(session: Session, feats: list[dict | None]) -> dict[str, float]:
+    """Scales that place the candidate grids: period, relay amplitudes, oscillation amplitude, max |u|."""
+    relays = [(r, f) for r, f in zip(session.runs, feats, strict=True) if r.spec.kind != "step" and f is not None]
+    hs = [float(r.spec.h) for r, _ in relays] or [float(np.max(np.abs(session.runs[0].data.u)))]
+    period = float(np.exp(np.median([f["period"] for _, f in relays]))) if relays else 1.0
+    amp = float(np.exp(min(f["amplitude"] for _, f in relays))) if relays else 1.0
+    umax = max(float(np.max(np.abs(r.data.u))) for r in session.runs)
+    return {"period": period, "h_min": min(hs), "h_max": max(hs), "amp": amp, "umax": umax}
+
+
+def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int = 8) -> np.ndarray:
+    """Coarse grid of effect ``name``'s parameter for a session with scales ``sc`` (vocabulary units)."""
+    P, g = sc["period"], np.geomspace
+    if name == "delay":
+        return g(0.01 * P, 0.3 * P, n)
+    if name == "lag":
+        return g(0.01 * P, 0.3 * P, n)
+    if name == "gain":
+        return g(1 / 3, 3.0, n + 1)
+    if name == "saturation":
+        return g(0.15, 1.0, n) * sc["umax"]
+    if name == "dead_zone":
+        return g(0.03, 0.8, n) * sc["h_min"]
+    if name == "rate_limit":
+        return 4 * sc["h_max"] / (g(0.01, 0.4, n) * P)
+    if name == "bias":
+        half = g(0.03, 0.8, n // 2 + 1) * sc["h_min"]
+        return np.concatenate([-half[::-1], half])
+    if name == "quantization":
+        return g(0.02, 0.6, n) * sc["amp"]
+    if name == "sample_hold":
+        return g(4.0, rate_hz / 1.5, n)
+    if name == "lowpass":
+        return g(min(0.3 / P, 0.4 * rate_hz), 0.45 * rate_hz, n)
+    if name == "noise":
+        base = noise_std if noise_std > 0 else 0.01 * sc["amp"]
+        return g(0.3, 8.0, n) * base
+    raise ValueError(name)
+
+
+class _Evaluator:
+    """Simulates episodes and scores them against the measured features."""
+
+    def __init__(self, session: Session, model: ModelSpec, base: dict[str, float], seed: int, nthread: int,
+                 dt: float):
+        self.session, self.model, self.base, self.seed, self.nthread = session, model, base, seed, nthread
+        self.dt = dt
+        self.R = len(session.runs)
+        self.meas = [run_features(r.spec, r.data.t, r.data.y, r.data.u) for r in session.runs]
+        self.scales: list[dict[str, float]] | None = None
+        self.calls = 0
+
+    def sims(self, cands: list[tuple[str, float]], seeds: int = 1) -> list[list[SimRun]]:
+        """Per (candidate, seed), the simulated runs."""
+        plans = [Episode(i, name, float(v), s) for name, v in cands for s in range(seeds) for i in range(self.R)]
+        self.calls += 1
+        out = simulate(self.session, self.model, plans, seed=self.seed * 1000 + self.calls,
+                       nthread=self.nthread, base_effects=self.base, dt=self.dt)  # fmt: skip
+        return [out[k * self.R:(k + 1) * self.R] for k in range(len(cands) * seeds)]
+
+    def features(self, sims: list[SimRun]) -> list[dict | None]:
+        return [run_features(r.spec, s.t, s.y, s.u) for r, s in zip(self.session.runs, sims, strict=True)]
+
+    def gap(self, feats: list[dict | None]) -> float:
+        return gap_value(compare(self.meas, feats, self.scales))
+
+
+def _refine(values: np.ndarray, gaps: np.ndarray) -> float:
+    """Best value, by a parabola through the best grid point and its neighbours (log of |value|)."""
+    # duplicate grid values (fine grids include coarse points): keep the best score of each
+    uniq = np.unique(values)
+    gaps = np.array([gaps[values == v].min() for v in uniq])
+    values = uniq
+    k = int(np.argmin(gaps))
+    if k == 0 or k == values.size - 1 or np.sign(values[k - 1]) != np.sign(values[k + 1]):
+        return float(values[k])
+    s = math.copysign(1.0, values[k])
+    x = np.log(np.abs(values[k - 1:k + 2]))
+    y = gaps[k - 1:k + 2]
+    with np.errstate(all="ignore"):
+        return _vertex(x, y, s, float(values[k]))
+
+
+def _vertex(x: np.ndarray, y: np.ndarray, s: float, fallback: float) -> float:
+    den = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
+    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / den
+    b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / den
+    if not (np.isfinite(a) and np.isfinite(b)) or a <= 0:
+        return fallback
+    xv = float(np.clip(-b / (2 * a), min(x[0], x[2]), max(x[0], x[2])))
+    return s * math.exp(xv)
+
+
+def _effect_params(name: str, value: float) -> dict[str, float]:
+    return {EFFECT_PARAMS[name][0]: float(value)} if name != "none" else {}
+
+
+def run_gap(
+    session: Session,
+    model: ModelSpec | None = None,
+    seed: int = 0,
+    nthread: int = 0,
+    top: int = 3,
+    coarse: int = 6,
+    fine: int = 7,
+    dt: float = 0.001,
+    candidates: tuple[str, ...] = CANDIDATES,
+    log=None,
+) -> GapResult:
+    """Run the whole gap workflow on a session.
+
+    Parameters
+    ----------
+    session : Session
+        Measured runs (np-mrft, mrft, step) of the altitude, roll or pitch loop.
+    model : ModelSpec, optional
+        Model to test instead of the session's ``[model]``.
+    seed : int
+        Seed of every simulated noise draw (recorded in the result).
+    nthread : int
+        MuJoCo threads (0: all CPUs).
+    top : int
+        Candidates that get the fine grid.
+    coarse, fine : int
+        Points of the coarse grid per candidate and of the fine grid.
+    dt : float
+        Physics step of the MuJoCo simulations, s (1 ms: the loops' dynamics
+        are much slower; half the cost of the 0.5 ms default).
+    candidates : tuple of str
+        Vocabulary effects to try (default: all).
+    log : callable(str), optional
+        Progress messages.
+
+    Returns
+    -------
+    GapResult
+    """
+    t_start = time.perf_counter()
+    bad = [c for c in candidates if c not in CANDIDATES]
+    if bad or not candidates:
+        raise UserError(f"unknown candidate effect {bad[0] if bad else '(none given)'!r}")
+    top = min(top, len(candidates))
+    log = log or (lambda msg: None)
+    model = model or session.model
+    if model is None:
+        raise UserError("the session has no [model] and no --model FILE was given: nothing to compare with")
+    model_params(session, model)  # loop support and parameter checks
+    base: dict[str, float] = {}
+    for e in session.effects:
+        if e.name == "none":
+            continue
+        if e.name in base:
+            raise SessionError(f"session.toml: effect {e.name!r} listed twice (the gap workflow needs one of each)")
+        base[e.name] = float(e.params[EFFECT_PARAMS[e.name][0]])
+    ev = _Evaluator(session, model, base, seed, nthread, dt)
+    for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
+        if f is None:
+            what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != "step" else "no usable step"
+            raise UserError(f"run {i} ({r.spec.file}): the measured data holds {what}; the gap cannot be measured")
+    rate = float(session.control_rate_hz)
+
+    # 1. gap before, with several noise seeds (their spread is what noise explains)
+    before = ev.sims([("none", 0.0)], seeds=SEEDS)
+    fb = [ev.features(s) for s in before]
+    for i, (r, f) in enumerate(zip(session.runs, fb[0], strict=True)):
+        if f is None and r.spec.kind != "step":
+            raise UserError(
+                f"run {i} ({r.spec.file}): the model does not even reproduce the oscillation "
+                f"(measured period {math.exp(ev.meas[i]['period']):.3g} s; the simulated run "
+                "does not oscillate or diverges): check K, T_prop, T1, tau before looking for effects"
+            )
+        if f is None:
+            raise UserError(f"run {i} ({r.spec.file}): the model's step response diverges; check the model")
+    ev.scales = noise_scales(fb)
+    gaps_before = [ev.gap(f) for f in fb]
+    gap_before = float(np.mean(gaps_before))
+    z = compare(ev.meas, fb[0], ev.scales)
+    disagreements = []
+    for (i, feat), zv in sorted(z.items(), key=lambda kv: -abs(kv[1]))[:8]:
+        if abs(zv) < 2.0:
+            break
+        run = session.runs[i]
+        f = ev.meas[i]
+        width = math.exp(f["period"]) if "period" in f else 1.0
+        w = worst_window(run.data.t, run.data.y, before[0][i].y, width)
+        disagreements.append(Disagreement(f"{i}:{run.spec.file}", feat, float(zv), w))
+    log(f"gap before {gap_before:.3f} ({time.perf_counter() - t_start:.1f} s)")
+
+    # 2. coarse grids of every candidate in one batch
+    sc = _session_scales(session, ev.meas)
+    grids = {c: candidate_grid(c, sc, float(model.noise_std), rate, coarse) for c in candidates}
+    cands = [(c, float(v)) for c in candidates for v in grids[c]]
+    sims = ev.sims(cands)
+    scores = np.array([ev.gap(ev.features(s)) for s in sims])
+    per: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    k = 0
+    for c in candidates:
+        m = grids[c].size
+        per[c] = (grids[c], scores[k:k + m])
+        k += m
+    log(f"coarse grids done ({time.perf_counter() - t_start:.1f} s)")
+
+    # 3. fine grids around the best of the top candidates, then a zoom on the best two
+    allv = {c: list(zip(per[c][0].tolist(), per[c][1].tolist(), strict=True)) for c in candidates}
+    for stage, (ntop, npts) in enumerate(((top, fine), (2, 5))):
+        order = sorted(candidates, key=lambda c: min(g for _, g in allv[c]))
+        fine_c: list[tuple[str, float]] = []
+        for c in order[:ntop]:
+            pts = sorted(allv[c])
+            vals = np.array([v for v, _ in pts])
+            j = int(np.argmin([g for _, g in pts]))
+            lo, hi = vals[max(j - 1, 0)], vals[min(j + 1, vals.size - 1)]
+            if np.sign(lo) != np.sign(vals[j]) or lo == 0:
+                lo = vals[j] * 0.6
+            if np.sign(hi) != np.sign(vals[j]) or hi == 0:
+                hi = vals[j] / 0.6
+            fine_c += [(c, float(v)) for v in np.sign(vals[j]) * np.geomspace(abs(lo), abs(hi), npts)]
+        sims = ev.sims(fine_c)
+        for (c, v), s in zip(fine_c, sims, strict=True):
+            allv[c].append((v, ev.gap(ev.features(s))))
+        log(f"fine grid {stage + 1} done ({time.perf_counter() - t_start:.1f} s)")
+    best: dict[str, tuple[float, float]] = {}
+    for c in candidates:
+        pts = sorted(allv[c])
+        vals = np.array([v for v, _ in pts])
+        gs = np.array([g for _, g in pts])
+        best[c] = (_refine(vals, gs), float(gs.min()))
+
+    # 4. verify the refined value of the top candidates with fresh seeds, decide
+    top_c = sorted(candidates, key=lambda c: best[c][1])[:2]
+    ver = ev.sims([(c, best[c][0]) for c in top_c], seeds=SEEDS)
+    verified: dict[str, float] = {}
+    for j, c in enumerate(top_c):
+        fv = [ev.features(s) for s in ver[j * SEEDS:(j + 1) * SEEDS]]
+        # what noise explains under the fitted model: its own seed spread counts too
+        own = noise_scales(fv)
+        sc_v = [{k: math.hypot(a.get(k, 0.0), b.get(k, 0.0)) for k in set(a) | set(b)}
+                for a, b in zip(ev.scales, own, strict=True)]  # fmt: skip
+        verified[c] = float(np.mean([gap_value(compare(ev.meas, f, sc_v)) for f in fv]))
+    ranking = [{"effect": "none", "params": {}, "gap": gap_before, "score": gap_before}]
+    for c in candidates:
+        g = verified.get(c, best[c][1])
+        ranking.append({"effect": c, "params": _effect_params(c, best[c][0]), "gap": g, "score": g + PENALTY})
+    ranking.sort(key=lambda r: r["score"])
+    winner = ranking[0]
+    # name an effect only when it explains most of the gap: a gap within noise,
+    # or one that no single effect closes, is answered ``none``
+    if gap_before <= NONE_GAP or winner["gap"] > NAME_RATIO * gap_before:
+        winner = ranking[[r["effect"] for r in ranking].index("none")]
+    effect = winner["effect"]
+    if effect == "none":
+        gap_after, sims_after = gap_before, before[0]
+        effects = list(session.effects)
+    else:
+        j = top_c.index(effect)
+        gap_after, sims_after = verified[effect], ver[j * SEEDS]
+        effects = [e for e in session.effects if e.name != effect]
+        effects.append(EffectSpec(effect, dict(winner["params"])))
+    return GapResult(
+        effect=effect,
+        params=dict(winner["params"]),
+        gap_before=gap_before,
+        gap_after=gap_after,
+        ranking=ranking,
+        disagreements=disagreements,
+        model=model,
+        effects=effects,
+        seed=seed,
+        seconds=time.perf_counter() - t_start,
+        sims_before=before[0],
+        sims_after=sims_after,
+    )
+
+
+def updated_session(session: Session, result: GapResult) -> Session:
+    """The session with the tested model and the winner added to its ``[[effects]]``."""
+    return dataclasses.replace(session, model=result.model, effects=list(result.effects))
+
+
+def format_table(result: GapResult) -> str:
+    """Readable summary: the answer, the ranking, and where the model disagrees."""
+    lines = [
+        f"effect: {result.effect}  params: "
+        + (", ".join(f"{k}={v:.4g}" for k, v in result.params.items()) or "-"),
+        f"gap before: {result.gap_before:.3f}   gap after: {result.gap_after:.3f}"
+        f"   ({result.seconds:.1f} s, seed {result.seed})",
+        "",
+        f"{'rank':<5}{'effect':<14}{'params':<26}{'gap':>9}{'score':>9}",
+    ]
+    for i, r in enumerate(result.ranking, 1):
+        p = ", ".join(f"{k}={v:.4g}" for k, v in r["params"].items()) or "-"
+        lines.append(f"{i:<5}{r['effect']:<14}{p:<26}{r['gap']:>9.3f}{r['score']:>9.3f}")
+    if result.disagreements:
+        lines += ["", "where the model disagrees (before):", f"{'run':<24}{'feature':<12}{'z':>8}   window (s)"]
+        for d in result.disagreements:
+            lines.append(f"{d.run:<24}{d.feature:<12}{d.z:>8.1f}   {d.window_s[0]:.2f}-{d.window_s[1]:.2f}")
+    return "\n".join(lines)
