@@ -53,7 +53,7 @@ test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m "slow or not slow"
 
 lint: $(STAMP)
-	$(BIN)/ruff check uavsim tests
+	$(BIN)/ruff check uavsim tests docs
 
 bench: $(STAMP)
 	$(BIN)/uavsim bench sim
