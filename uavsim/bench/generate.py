@@ -29,7 +29,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from uavsim.cli._common import eprint, print_json, print_table
+from uavsim.cli._common import eprint, print_result
 
 BENCH_RECIPE = """\
 # uavsim bench generate: a subset of the altitude grid, every noise kind
@@ -130,10 +130,7 @@ def bench_generate(n_classes: int = 26, per_class: int = 16, chunk: int = 104, w
 def _run(args: argparse.Namespace) -> int:
     eprint(f"bench generate: {args.classes} altitude classes x {args.per_class} episodes ...")
     r = bench_generate(args.classes, args.per_class, args.chunk, args.workers, args.repeats)
-    if args.json:
-        print_json(r)
-    else:
-        print_table([{"measure": k, "value": v} for k, v in r.items()])
+    print_result(r, args.json)
     return 0
 
 

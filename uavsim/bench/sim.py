@@ -19,7 +19,7 @@ import time
 import mujoco
 import numpy as np
 
-from uavsim.cli._common import eprint, print_json, print_table
+from uavsim.cli._common import eprint, print_result
 from uavsim.control.relay import MRFT
 from uavsim.lumped.params import LumpedParams
 from uavsim.sim.runner import LoopBatch
@@ -87,10 +87,7 @@ def bench_sim(nsim: int = 1024, duration_s: float = 2.0, dt: float = 0.001, rate
 def _run(args: argparse.Namespace) -> int:
     eprint(f"bench sim: {args.nsim} simulations, {args.duration} s each ...")
     r = bench_sim(args.nsim, args.duration, args.dt, python_sims=args.python_sims, seed=args.seed, rounds=args.rounds)
-    if args.json:
-        print_json(r)
-    else:
-        print_table([{"measure": k, "value": v} for k, v in r.items()])
+    print_result(r, args.json)
     return 0
 
 

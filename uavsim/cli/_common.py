@@ -65,3 +65,11 @@ def register_modules(sub, names: list[str]) -> None:
                 raise
             continue
         mod.register(sub)
+
+
+def print_result(result: dict[str, Any], as_json: bool) -> None:
+    """A benchmark's figures: one JSON object with ``--json``, else a measure/value table."""
+    if as_json:
+        print_json(result)
+    else:
+        print_table([{"measure": k, "value": v} for k, v in result.items()])

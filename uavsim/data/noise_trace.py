@@ -18,7 +18,6 @@ in another order); the dataset's determinism only needs its own.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,15 +57,7 @@ def trace(effect: SignalEffect, m: int, T: int, rate_hz: float, rng: np.random.G
         phase = phase0 + np.concatenate([np.zeros((1, m)), np.cumsum(steps[:-1], axis=0)])
         return amp * np.sin(phase)
     if isinstance(effect, ColouredNoise):
-        require(effect.high_hz < rate_hz / 2, effect.name,
-                f"high_hz {effect.high_hz} must be below Nyquist {rate_hz / 2}")
-        if effect.low_hz > 0:
-            sos = _signal.butter(effect.order, [effect.low_hz, effect.high_hz], "bandpass", fs=rate_hz, output="sos")
-        else:
-            sos = _signal.butter(effect.order, effect.high_hz, "lowpass", fs=rate_hz, output="sos")
-        imp = np.zeros(int(50 * rate_hz / max(effect.low_hz or effect.high_hz, 1e-3)) + 1000)
-        imp[0] = 1.0
-        gain = math.sqrt(float(np.sum(_signal.sosfilt(sos, imp) ** 2)))
+        sos, gain = effect.design(rate_hz)
         # a warm-up history puts the filter in its stationary state at sample 0
         warm = int(10 * rate_hz / (effect.low_hz or effect.high_hz)) + 10
         v = _signal.sosfilt(sos, rng.standard_normal((warm + T, m)), axis=0)[warm:]

@@ -202,8 +202,8 @@ class ColouredNoise(SignalEffect):
                 "low_hz must be in [0, high_hz)")
         require(isinstance(self.order, int) and 1 <= self.order <= 8, self.name, "order must be 1..8")
 
-    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
-        super().reset(n, rate_hz, rng)
+    def design(self, rate_hz: float) -> tuple[np.ndarray, float]:
+        """The shaping filter at ``rate_hz``: (sos, gain), gain = RMS of its output for unit white input."""
         require(self.high_hz < rate_hz / 2, self.name, f"high_hz {self.high_hz} must be below Nyquist {rate_hz / 2}")
         if self.low_hz > 0:
             sos = _signal.butter(self.order, [self.low_hz, self.high_hz], "bandpass", fs=rate_hz, output="sos")
@@ -212,7 +212,11 @@ class ColouredNoise(SignalEffect):
         # unit-variance output for unit white input: divide by the impulse response's energy
         imp = np.zeros(int(50 * rate_hz / max(self.low_hz or self.high_hz, 1e-3)) + 1000)
         imp[0] = 1.0
-        gain = math.sqrt(float(np.sum(_signal.sosfilt(sos, imp) ** 2)))
+        return sos, math.sqrt(float(np.sum(_signal.sosfilt(sos, imp) ** 2)))
+
+    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
+        super().reset(n, rate_hz, rng)
+        sos, gain = self.design(rate_hz)
         self._sos = sos
         self._scale = _batch(self.std, n, "std") / gain
         self._zi = np.zeros((sos.shape[0], 2, n))
