@@ -23,21 +23,11 @@ import zlib
 
 import numpy as np
 import pytest
+from _fidelity import cycle_rows, relay_pair
 
-from uavsim.control.relay import MRFT
 from uavsim.lumped.params import RANGES, LumpedParams, loop_family
 from uavsim.lumped.reference import LumpedDiscrete
 from uavsim.sim.runner import LoopBatch
-
-
-def cycle(y: np.ndarray, u: np.ndarray, Ts: float) -> tuple[float, float]:
-    """Mean period and half peak-to-peak over the second half of a relay run."""
-    rising = np.flatnonzero(np.diff(np.sign(u)) > 0)
-    rising = rising[rising >= y.size // 2]
-    assert rising.size >= 3, "no sustained oscillation"
-    period = (rising[-1] - rising[0]) / (rising.size - 1) * Ts
-    seg = y[rising[0] : rising[-1]]
-    return period, (seg.max() - seg.min()) / 2
 
 
 def random_params(loop: str, n: int, rng: np.random.Generator) -> list[LumpedParams]:
@@ -50,39 +40,18 @@ def random_params(loop: str, n: int, rng: np.random.Generator) -> list[LumpedPar
     return out
 
 
-def run_pair(params: list[LumpedParams], beta: float, dt: float, rate_hz: float, duration: float):
+def compare(params, beta, dt, rate_hz, duration):
     n = len(params)
     # a definite start: the first sample's sign must not hinge on round-off
     y0 = np.array([-1e-3 * p.K for p in params])
     # relay amplitude scaled by 1/K keeps every cycle small (attitude in radians)
     h = np.array([0.2 / p.K for p in params])
-    lb = LoopBatch(params, dt=dt, rate_hz=rate_hz, y0=y0)
-    res = lb.run(MRFT(beta, h, rate_hz, n), duration)
-    assert not res.diverged.any(), res.reasons
     ref = LumpedDiscrete.inner(
         [p.K for p in params], [p.T_prop for p in params], [p.T1 for p in params], [p.tau for p in params], 1 / rate_hz
     )
     x0 = np.zeros((n, 3))
-    x0[:, 0] = y0
-    y = ref.reset(x0, prehistory="zero")
-    relay = MRFT(beta, h, rate_hz, n)
-    T = res.t.size
-    Y, U = np.empty((n, T)), np.empty((n, T))
-    for k in range(T):
-        u = relay(-y)
-        Y[:, k], U[:, k] = y, u
-        y = ref.step(u)
-    return res, Y, U
-
-
-def compare(params, beta, dt, rate_hz, duration):
-    res, Y, U = run_pair(params, beta, dt, rate_hz, duration)
-    rows = []
-    for i, p in enumerate(params):
-        P1, A1 = cycle(res.y[i], res.u[i], 1 / rate_hz)
-        P2, A2 = cycle(Y[i], U[i], 1 / rate_hz)
-        rows.append((p, P1, P2, A1, A2))
-    return rows
+    x0[:, 0] = y0  # the delay line starts empty (prehistory zero), as MuJoCo's history buffer
+    return cycle_rows(params, *relay_pair(params, beta, h, y0, ref, x0, dt, rate_hz, duration), rate_hz)
 
 
 @pytest.mark.parametrize("loop", ["altitude", "roll", "pitch"])

@@ -42,8 +42,8 @@ import zlib
 
 import numpy as np
 import pytest
+from _fidelity import cycle_rows, relay_pair
 
-from uavsim.control.relay import MRFT
 from uavsim.lumped.params import RANGES, LumpedParams
 from uavsim.lumped.reference import LateralDiscrete
 from uavsim.model.vehicle import G
@@ -53,16 +53,6 @@ from uavsim.tuning.grid import load_grid
 #: attitude reference amplitude of the relay, rad: small, because the attitude loop resonates
 #: (its cycle tilts up to ~5x this), and tan(theta) and the 1/cos thrust must stay ~linear
 TILT = 0.005
-
-
-def cycle(y: np.ndarray, u: np.ndarray, Ts: float) -> tuple[float, float]:
-    """Mean period and half peak-to-peak over the second half of a relay run."""
-    rising = np.flatnonzero(np.diff(np.sign(u)) > 0)
-    rising = rising[rising >= y.size // 2]
-    assert rising.size >= 3, "no sustained oscillation"
-    period = (rising[-1] - rising[0]) / (rising.size - 1) * Ts
-    seg = y[rising[0] : rising[-1]]
-    return period, (seg.max() - seg.min()) / 2
 
 
 @functools.cache
@@ -118,35 +108,14 @@ def relay_amplitude(params: list[LumpedParams]) -> np.ndarray:
     return np.array([TILT * G * p.T2 / p.K for p in params])
 
 
-def run_pair(params: list[LumpedParams], beta: float, dt: float, rate_hz: float, duration: float):
+def compare(params, beta, dt, rate_hz, duration):
     n = len(params)
     y0 = np.array([-1e-3 * p.K for p in params])
-    h = relay_amplitude(params)
-    lb = LoopBatch(params, dt=dt, rate_hz=rate_hz, y0=y0)
-    res = lb.run(MRFT(beta, h, rate_hz, n), duration)
-    assert not res.diverged.any(), res.reasons
-    ref = reference(params, dt, rate_hz)
     x0 = np.zeros((n, 5))
     x0[:, 3] = y0
-    y = ref.reset(x0)
-    relay = MRFT(beta, h, rate_hz, n)
-    T = res.t.size
-    Y, U = np.empty((n, T)), np.empty((n, T))
-    for k in range(T):
-        u = relay(-y)
-        Y[:, k], U[:, k] = y, u
-        y = ref.step(u)
-    return res, Y, U
-
-
-def compare(params, beta, dt, rate_hz, duration):
-    res, Y, U = run_pair(params, beta, dt, rate_hz, duration)
-    rows = []
-    for i, p in enumerate(params):
-        P1, A1 = cycle(res.y[i], res.u[i], 1 / rate_hz)
-        P2, A2 = cycle(Y[i], U[i], 1 / rate_hz)
-        rows.append((p, P1, P2, A1, A2))
-    return rows
+    res_y_u = relay_pair(params, beta, relay_amplitude(params), y0, reference(params, dt, rate_hz), x0, dt, rate_hz,
+                         duration)
+    return cycle_rows(params, *res_y_u, rate_hz)
 
 
 @pytest.mark.parametrize("loop", ["lateral_x", "lateral_y"])
