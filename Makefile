@@ -62,6 +62,9 @@ bench: $(STAMP)
 
 replay: $(STAMP)
 	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
+	@if [ -f datasets/small.h5 ]; then \
+	  $(BIN)/uavsim replay datasets/small.h5 --class 1 --episode 5 --save $(OUT)/demo-small-class1-episode5.rrd; \
+	else echo "make replay: no datasets/small.h5 (make demo writes it); dataset replay skipped"; fi
 
 generate-data: $(STAMP)
 	@for l in $(LOOPS); do \

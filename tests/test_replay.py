@@ -100,6 +100,10 @@ def test_summary_recomputes_relay(replayed) -> None:
     for a, b in good["windows"]:
         assert b - a == pytest.approx(n_obs / RATE)
     assert "matches" in good["messages"][-1]
+    # a noise-free simulated session is simulated again from its [model]: pose and thrusts
+    assert good["vehicle"] and good["resimulated"]["dt"] == 0.001
+    assert good["entities"]["runs/relay/world/vehicle"] == good["entities"]["runs/relay/y_true"] == 1600
+    assert good["entities"]["runs/relay/world/vehicle/thrust"] == 1600
     # the tampered copy: 5 flipped samples, 2 sign changes more
     assert bad["u_mismatch"] == 5
     assert "differs" in bad["messages"][-1]

@@ -3,8 +3,9 @@
 NP-MRFT on the scenario's loops through its sensor chain (camera, IMU,
 Kalman filter), identification, tuning, then the step or disturbance test.
 Prints a table beside the paper's Tables I/II, writes a Rerun recording
-(``--save FILE.rrd``; default ``<scenario>.rrd`` in the current folder), and
-with ``--json`` prints one JSON object on stdout.
+(``--save FILE.rrd``; default ``<scenario>.rrd`` in the current folder) with
+the run's arrays beside it (``FILE.run.npz``, what ``uavsim replay FILE.rrd``
+reads back), and with ``--json`` prints one JSON object on stdout.
 
     uavsim scenario run scenarios/normal-camera-kf.toml --json --save normal-kf.rrd
 """

@@ -45,7 +45,8 @@ class VisionResult(EpisodeResult):
     low-passed), ``target`` (target position along the axis, m), ``pos``
     (vehicle position along the axis, m), ``schedule`` (1 PBVS / 2 IBVS),
     ``innovation`` (m, 0 between frames), ``force`` (external force along
-    the axis, N).
+    the axis, N); and from ``EpisodeResult`` the vehicle's ``qpos`` and
+    ``rotor_force`` (n, T, 6) when the episode records its state.
     """
 
     y_cam: np.ndarray | None = None
@@ -74,11 +75,14 @@ class VisionEpisode:
         Physics step and control rate.
     switch : SwitchParams
         Schedule switch settings (``scheduled`` mode).
+    record_state : bool
+        Record the vehicle's ``qpos`` and rotor thrusts (n, T, 6) for replays
+        (``uavsim replay``); cheap for the scenarios' single episodes.
     """
 
     def __init__(self, params: Sequence[LumpedParams] | LumpedParams, chain: ChainParams, *, mode: str = "kf",
                  forces: Sequence[Effect] = (), seed: int = 0, dt: float = 0.0005, rate_hz: float = 200.0,
-                 switch: SwitchParams | None = None, saturation: bool = True):
+                 switch: SwitchParams | None = None, saturation: bool = True, record_state: bool = True):
         if mode not in MODES:
             raise UserError(f"vision episode: mode must be one of {', '.join(MODES)}, got {mode!r}")
         plist = [params] if isinstance(params, LumpedParams) else list(params)
@@ -87,7 +91,8 @@ class VisionEpisode:
         self.chain_params = chain.check()
         if plist[0].loop != chain.axis:
             raise UserError(f"vision episode: the chain measures {chain.axis}, the process is {plist[0].loop}")
-        self.lb = LoopBatch(plist, dt=dt, rate_hz=rate_hz, effects=forces, seed=seed, saturation=saturation)
+        self.lb = LoopBatch(plist, dt=dt, rate_hz=rate_hz, effects=forces, seed=seed, saturation=saturation,
+                            record_state=record_state)
         self.mode, self.seed, self.rate_hz = mode, int(seed), float(rate_hz)
         self.switch_params = switch or SwitchParams()
 
@@ -124,6 +129,7 @@ class VisionEpisode:
         ax = lb.map.axis
         t = np.arange(T) / self.rate_hz
         out = {k: np.zeros((n, T)) for k in ("r", "y", "u", "yt", "ycam", "ykf", "tgt", "pos", "sched", "nu", "f")}
+        QP, RF = lb.state_buffers(T)
         diverged = np.zeros(n, dtype=bool)
         reasons: dict[int, str] = {}
         lateral = lb.lateral
@@ -172,6 +178,8 @@ class VisionEpisode:
                              ("ykf", s.y_kf), ("tgt", tg), ("pos", y_true), ("nu", s.innovation),
                              ("f", f[:, min(ax, 2)])):
                 out[key][:, k] = val
+            if QP is not None:
+                QP[:, k] = lb.qpos
             try:
                 lb.batch.step(nstep=lb.rate_steps)
             except Exception as exc:  # a MuJoCo simulation error ends the faulty episodes
@@ -179,6 +187,8 @@ class VisionEpisode:
                     if not diverged[i]:
                         diverged[i] = True
                         reasons[int(i)] = f"MuJoCo error at t={tk:.3f}s: {exc}"
+            if RF is not None:
+                RF[:, k] = lb.actuator_force
             bad = ~np.isfinite(lb.qpos).all(axis=1) | (np.abs(lb.qpos[:, :3]) > 1e3).any(axis=1)
             bad |= (np.abs(lb.qpos[:, 3:5]) > 1.2).any(axis=1)
             for i in np.flatnonzero(bad & ~diverged):
@@ -188,9 +198,10 @@ class VisionEpisode:
             if new.any():
                 lb.qpos[new] = 0.0
                 lb.qvel[new] = 0.0
-        for arr in out.values():
-            arr[diverged] = np.nan
-        return VisionResult(t, out["r"], out["y"], out["u"], out["yt"], diverged, reasons, None, self.seed,
+        for arr in (*out.values(), QP, RF):
+            if arr is not None:
+                arr[diverged] = np.nan
+        return VisionResult(t, out["r"], out["y"], out["u"], out["yt"], diverged, reasons, None, self.seed, QP, RF,
                             y_cam=out["ycam"], y_kf=out["ykf"], target=out["tgt"], pos=out["pos"],
                             schedule=out["sched"] if self.mode == "scheduled" else None,
                             innovation=out["nu"], force=out["f"])

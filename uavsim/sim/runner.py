@@ -16,6 +16,11 @@ filters), never ground truth.
 Episodes that diverge (NaN, a runaway state, a MuJoCo error) are flagged in
 ``res.diverged`` with a reason, and their rows are NaN: they are never
 returned as data (``res.valid()`` keeps the others).
+
+With ``record_state=True`` the result also holds the vehicle's joint
+positions ``qpos`` and the six rotor thrusts ``rotor_force``, (n, T, 6) at the
+control rate, for replays (``uavsim.viz``); it is off by default, and then
+nothing more is bound or copied per step.
 """
 
 from __future__ import annotations
@@ -52,6 +57,13 @@ class EpisodeResult:
     reasons : dict episode -> why it diverged
     switched : (n, T) bool, where the controller reported a switch (relays), else None
     seed : the batch's seed
+    qpos : (n, T, 6) or None
+        Joint positions x, y, z (m), roll, pitch, yaw (rad) at each control
+        sample, before the physics advances (``record_state=True`` only).
+    rotor_force : (n, T, 6) or None
+        Thrust of each rotor, N, in the last physics substep after control
+        sample ``k`` (what the rotors produced while command ``k`` was held;
+        ``record_state=True`` only).
     """
 
     t: np.ndarray
@@ -63,6 +75,8 @@ class EpisodeResult:
     reasons: dict[int, str] = field(default_factory=dict)
     switched: np.ndarray | None = None
     seed: int = 0
+    qpos: np.ndarray | None = None
+    rotor_force: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -71,6 +85,35 @@ class EpisodeResult:
     def valid(self) -> np.ndarray:
         """Indices of the episodes that did not diverge, (m,)."""
         return np.flatnonzero(~self.diverged)
+
+
+def _out_delay_weights(out_delay: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weights of (state now, state one step ago, delayed sensor) that give an output delay.
+
+    MuJoCo's sensor history cannot interpolate inside the newest step: a sensor
+    delay in (0, dt] reads the state two steps back, like a delay of dt. So an
+    output delay ``L`` (s) below two steps is made by linear interpolation
+    between the state now (lag 0), an undelayed sensor (lag dt) and the
+    sensor delayed by dt (lag 2 dt); from two steps on the delayed sensor
+    (delay ``L - dt``) interpolates natively.
+
+    Parameters
+    ----------
+    out_delay : (n,) s
+    dt : float, physics step, s
+
+    Returns
+    -------
+    w_now, w_step, w_out : (n,) each, summing to 1
+    """
+    L = np.asarray(out_delay, dtype=np.float64)
+    a = np.clip(L / dt, 0.0, 1.0)  # between now and one step ago
+    b = np.clip(L / dt - 1.0, 0.0, 1.0)  # between one and two steps ago
+    far = L >= 2.0 * dt
+    w_now = np.where(far, 0.0, 1.0 - a)
+    w_step = np.where(far, 0.0, a - b)
+    w_out = np.where(far, 1.0, b)
+    return w_now, w_step, w_out
 
 
 def _split_effects(effects: Sequence[Effect]):
@@ -103,6 +146,9 @@ class LoopBatch:
         Initial value of the tested output (m or rad); 0 by default.
     saturation : bool
         Clip rotor PWM to the vehicle's measured range (off for lumped models).
+    record_state : bool
+        Also record ``qpos`` and ``rotor_force`` (n, T, 6) in the result (off by
+        default: nothing extra is bound or copied).
     """
 
     def __init__(
@@ -117,7 +163,9 @@ class LoopBatch:
         nthread: int = 0,
         y0: np.ndarray | None = None,
         saturation: bool = False,
+        record_state: bool = False,
     ):
+        self.record_state = bool(record_state)
         self.vehicle = (vehicle or Vehicle()).check()
         if not (math.isfinite(dt) and dt > 0):
             raise UserError(f"physics timestep must be > 0 s, got {dt}")
@@ -140,8 +188,10 @@ class LoopBatch:
         max_delay = float(max(self.map.actuator_delay.max(), self.map.out_delay.max())) + 2 * dt
         xml = hexarotor_mjcf(self.vehicle, timestep=dt, max_delay_s=max_delay, saturation=saturation)
         self.model = mujoco.MjModel.from_xml_string(xml)
-        self._sensor_x = self.model.sensor("x").id
-        self._sensor_y = self.model.sensor("y").id
+        lat_x = self.loop != "lateral_y"
+        self._sensor_out = self.model.sensor("x" if lat_x else "y").id
+        self._sensor_step = self.model.sensor("x_step" if lat_x else "y_step").id
+        self._out_weights = _out_delay_weights(self.map.out_delay, dt)
         self.nthread = nthread
         # wrench -> rotor PWM (us), computed once: pinv is not free at 200 Hz
         self._wrench_to_pwm = (self.vehicle.mixer() / self.vehicle.thrust_per_us).T.copy()
@@ -158,8 +208,7 @@ class LoopBatch:
             # sensordata lags the state by one substep (it is computed before the
             # last integration), which is part of the outer delay
             sd = b.expand("sensor_delay")
-            sid = self._sensor_x if self.loop == "lateral_x" else self._sensor_y
-            sd[:, sid] = np.maximum(m.out_delay - self.dt, 0.0)
+            sd[:, self._sensor_out] = np.maximum(m.out_delay - self.dt, self.dt)
             b.expand("sensor_history")  # noqa: B018  per-simulation buffers follow the delays
         b.reset()
         self.batch = b
@@ -168,6 +217,8 @@ class LoopBatch:
         self.ctrl = b.bind("ctrl")
         self.xfrc = b.bind("xfrc_applied")
         self.sensordata = b.bind("sensordata") if self.lateral else None
+        # an output field is copied out after every step once bound: only when asked
+        self.actuator_force = b.bind("actuator_force") if self.record_state else None
         if self.y0 is not None:
             self.qpos[:, self.map.axis] = self.y0
 
@@ -196,11 +247,18 @@ class LoopBatch:
             wrench[:, 0] += v.mass_kg * G * (1.0 / np.maximum(c, 0.2) - 1.0)
         self.ctrl[:] = wrench @ self._wrench_to_pwm
 
+    def state_buffers(self, T: int) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+        """Empty ``qpos`` and ``rotor_force`` records, (n, T, 6) each, or (None, None) when not recording."""
+        if not self.record_state:
+            return None, None
+        return np.empty((self.n, T, 6)), np.empty((self.n, T, self.model.nu))
+
     def _measure_true(self) -> np.ndarray:
         if not self.lateral:
             return self.qpos[:, self.map.axis].copy()
-        sid = self._sensor_x if self.loop == "lateral_x" else self._sensor_y
-        return self.sensordata[:, sid].copy()
+        w_now, w_step, w_out = self._out_weights
+        return (w_now * self.qpos[:, self.map.axis] + w_step * self.sensordata[:, self._sensor_step]
+                + w_out * self.sensordata[:, self._sensor_out])
 
     def run(
         self,
@@ -237,6 +295,7 @@ class LoopBatch:
             R = np.broadcast_to(np.asarray(reference, dtype=float), (n, T))
             ref = lambda k: R[:, k]  # noqa: E731
         R_out, Y, U, Yt = (np.empty((n, T)) for _ in range(4))
+        QP, RF = self.state_buffers(T)
         SW = np.zeros((n, T), dtype=bool)
         has_sw = hasattr(controller, "switched")
         diverged = np.zeros(n, dtype=bool)
@@ -269,6 +328,8 @@ class LoopBatch:
             R_out[:, k], Y[:, k], U[:, k], Yt[:, k] = r, y, u, y_true
             if has_sw:
                 SW[:, k] = controller.switched
+            if QP is not None:
+                QP[:, k] = self.qpos
             try:
                 self.batch.step(nstep=self.rate_steps)
             except mjbatch.SimulationError as exc:
@@ -276,6 +337,8 @@ class LoopBatch:
                     if not diverged[i]:
                         diverged[i] = True
                         reasons[int(i)] = f"MuJoCo error at t={t[k]:.3f}s: {self.batch.error(int(i))}"
+            if RF is not None:
+                RF[:, k] = self.actuator_force
             bad = ~np.isfinite(self.qpos).all(axis=1) | (np.abs(self.qpos[:, :3]) > limit).any(axis=1)
             bad |= (np.abs(self.qpos[:, 3:5]) > 1.2).any(axis=1)
             new = bad & ~diverged
@@ -286,6 +349,7 @@ class LoopBatch:
                 # park diverged episodes so that they cannot poison the batch
                 self.qpos[new] = 0.0
                 self.qvel[new] = 0.0
-        for arr in (R_out, Y, U, Yt):
-            arr[diverged] = np.nan
-        return EpisodeResult(t, R_out, Y, U, Yt, diverged, reasons, SW if has_sw else None, self.seed)
+        for arr in (R_out, Y, U, Yt, QP, RF):
+            if arr is not None:
+                arr[diverged] = np.nan
+        return EpisodeResult(t, R_out, Y, U, Yt, diverged, reasons, SW if has_sw else None, self.seed, QP, RF)

@@ -1,34 +1,43 @@
-"""Replay a flight session in Rerun, with the relay's decisions recomputed.
+"""Replay a session, a dataset episode or a scenario run in Rerun, relay decisions recomputed.
 
 A relay test is easiest to debug by looking at it: the reference and the
 measurement, the command, the error with the switching instants, the extrema
 the NP-MRFT accepted and the ``tau_obs`` windows during which it would not
-switch, and the phase portrait ``(e, de/dt)`` whose limit cycle should close.
-This module reads a session (format ``uavsim-session/1``), replays every relay
-run through the project's own :class:`uavsim.control.relay.NPMRFT` (or
-:class:`~uavsim.control.relay.MRFT`) fed with the logged error sample by
-sample, counts the samples where the recomputed command differs from the
-logged ``u`` (a mismatch means the flight code and the simulator disagree on
-the controller semantics), and writes everything to a Rerun recording with a
-blueprint that lays it out.
+switch, and the phase portrait ``(e, de/dt)`` whose limit cycle should close;
+for a simulation also the noise-free output beside the noisy one and the
+vehicle itself, its pose and rotor thrusts. This module reads one of three
+sources into :class:`uavsim.viz.sources.ReplayRun` (a session folder; a
+dataset file, one class and episode, simulated again exactly; a scenario run),
+replays every relay run through the project's own
+:class:`uavsim.control.relay.NPMRFT` (or :class:`~uavsim.control.relay.MRFT`)
+fed with the logged error sample by sample, counts the samples where the
+recomputed command differs from the logged ``u`` (a mismatch means the flight
+code and the simulator disagree on the controller semantics), and writes
+everything to a Rerun recording with a blueprint that lays it out.
 
-Entity layout, per run ``runs/<file stem>/``: ``r``, ``y``, ``e``, ``u``
-(scalars on the ``time`` timeline, seconds), ``switches`` (e at the samples
-where ``u`` changes sign), ``extrema`` (accepted extrema, relay runs),
-``inhibition`` (1 inside a ``tau_obs`` window after an extremum, else 0; relay
-runs), ``phase`` (static 2D line strip ``(e, de/dt)``) and ``log`` (text).
+Entity layout, per run ``runs/<stem>/``: ``r``, ``y`` (as the controller saw
+it), ``y_true`` (noise-free, simulations), ``e``, ``u`` (scalars on the
+``time`` timeline, seconds), ``switches`` (e at the samples where ``u``
+changes sign), ``extrema`` (accepted extrema, relay runs), ``inhibition`` (1
+inside a ``tau_obs`` window after an extremum, else 0; relay runs), ``phase``
+(static 2D line strip ``(e, de/dt)``; ``phase/noise_free`` the same of
+``r - y_true``), ``signals/<name>`` (other signals:
+camera, Kalman filter, target, the file's raw trace), ``world/vehicle`` (the
+vehicle's ``Transform3D``, its geometry and ``thrust`` arrows; simulations,
+:mod:`uavsim.viz.vehicle3d`), ``world/path`` and ``log`` (text).
 
-    from uavsim.viz.replay import replay_session
-    summary = replay_session("flights/2024-05-01", "flights/2024-05-01/replay.rrd")
-    print(summary["runs"][0]["u_mismatch"])
+    from uavsim.viz.replay import replay
+    summary = replay("flights/2024-05-01", "replay.rrd")                 # a session
+    summary = replay("datasets/small.h5", "ep.rrd", cls=2, episode=0)    # a dataset episode
+    summary = replay("normal-camera-kf.rrd", "run-replay.rrd")           # a scenario run
+    summary["runs"][0]["u_mismatch"], summary["runs"][0]["entities"]
 
-From the command line: ``uavsim replay flights/2024-05-01 --save replay.rrd``.
+From the command line: ``uavsim replay PATH [--class C --episode E] --save replay.rrd``.
 """
 
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import sys
 from dataclasses import dataclass, field
@@ -39,7 +48,18 @@ import numpy as np
 
 from uavsim.control.relay import MRFT, NPMRFT
 from uavsim.errors import UserError
-from uavsim.formats.session import Run, Session, read_session
+from uavsim.formats.session import Run, Session
+from uavsim.viz.sources import (
+    ReplayRun,
+    dataset_runs,
+    detect_source,
+    entity_stem,
+    scenario_runs,
+    session_runs,
+)
+
+__all__ = ["replay", "replay_session", "recompute_relay", "recompute_relay_e", "phase_portrait", "sign_changes",
+           "entity_stem", "APP_ID", "TIMELINE"]
 
 #: Rerun application id of replay recordings.
 APP_ID = "uavsim_replay"
@@ -58,7 +78,7 @@ class RelayReplay:
     Parameters
     ----------
     u : numpy.ndarray
-        Recomputed command, one per sample.
+        Recomputed command, one per sample, (T,).
     switch_idx : numpy.ndarray
         Sample indices where the recomputed relay switched.
     ext_idx, ext_e : numpy.ndarray
@@ -79,12 +99,6 @@ class RelayReplay:
     n_obs: int = 0
 
 
-def entity_stem(file: str) -> str:
-    """Entity-path-safe stem of a run file (``"a/mrft b.csv"`` -> ``"mrft_b"``)."""
-    stem = Path(file).stem or "run"
-    return re.sub(r"[^A-Za-z0-9_\-]", "_", stem)
-
-
 def make_relay(run: Run, rate_hz: float) -> NPMRFT:
     """Build the relay (n=1) that the session says produced ``run``.
 
@@ -96,20 +110,28 @@ def make_relay(run: Run, rate_hz: float) -> NPMRFT:
         Controller rate of the session, Hz.
     """
     s = run.spec
-    if s.kind == "mrft":
-        return MRFT(s.beta, s.h, rate_hz, 1, bias=s.bias)
-    if s.kind == "np-mrft":
-        return NPMRFT(s.beta, s.h, s.tau_obs, s.a_n, rate_hz, 1, bias=s.bias)
-    raise UserError(f"{run.spec.file}: run kind {s.kind!r} is not a relay run")
+    if s.kind not in _RELAY_KINDS:
+        raise UserError(f"{run.spec.file}: run kind {s.kind!r} is not a relay run")
+    return _relay(s.kind, {"beta": s.beta, "h": s.h, "tau_obs": s.tau_obs, "a_n": s.a_n, "bias": s.bias}, rate_hz)
 
 
-def recompute_relay(run: Run, rate_hz: float) -> RelayReplay:
-    """Feed the logged error of a relay run to a fresh relay, sample by sample.
+def _relay(kind: str, p: dict[str, Any], rate_hz: float) -> NPMRFT:
+    if kind == "mrft":
+        return MRFT(p["beta"], p["h"], rate_hz, 1, bias=p.get("bias") or 0.0)
+    return NPMRFT(p["beta"], p["h"], p["tau_obs"] or 0.0, p["a_n"] or 0.0, rate_hz, 1, bias=p.get("bias") or 0.0)
+
+
+def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz: float) -> RelayReplay:
+    """Feed an error sequence to a fresh relay, sample by sample.
 
     Parameters
     ----------
-    run : Run
-        A run of kind ``np-mrft`` or ``mrft``.
+    e : (T,) output units
+        The error ``r - y`` the relay saw.
+    kind : str
+        ``np-mrft`` or ``mrft``.
+    params : dict
+        ``beta``, ``h`` (command units), ``tau_obs`` (s), ``a_n`` (output units), ``bias`` (command units).
     rate_hz : float
         Controller rate, Hz.
 
@@ -117,8 +139,8 @@ def recompute_relay(run: Run, rate_hz: float) -> RelayReplay:
     -------
     RelayReplay
     """
-    relay = make_relay(run, rate_hz)
-    e = run.data.r - run.data.y
+    relay = _relay(kind, params, rate_hz)
+    e = np.asarray(e, dtype=np.float64)
     n = e.size
     u = np.empty(n)
     switches: list[int] = []
@@ -143,6 +165,14 @@ def recompute_relay(run: Run, rate_hz: float) -> RelayReplay:
     )
 
 
+def recompute_relay(run: Run, rate_hz: float) -> RelayReplay:
+    """:func:`recompute_relay_e` on a session relay run (its logged ``r - y``)."""
+    s = run.spec
+    make_relay(run, rate_hz)  # refuses non-relay runs
+    params = {"beta": s.beta, "h": s.h, "tau_obs": s.tau_obs, "a_n": s.a_n, "bias": s.bias}
+    return recompute_relay_e(run.data.r - run.data.y, s.kind, params, rate_hz)
+
+
 def sign_changes(u: np.ndarray, offset: float = 0.0) -> np.ndarray:
     """Sample indices ``k >= 1`` where ``u - offset`` changes sign from sample ``k-1``."""
     s = np.sign(np.asarray(u, dtype=np.float64) - offset)
@@ -156,70 +186,100 @@ def phase_portrait(t: np.ndarray, e: np.ndarray) -> np.ndarray:
     return np.column_stack([e, np.gradient(e, t)])
 
 
-def _blueprint(stems: list[str]) -> Any:
+def _blueprint(runs: list[ReplayRun]) -> Any:
     import rerun.blueprint as rrb
 
-    def run_layout(stem: str) -> Any:
+    def run_layout(run: ReplayRun) -> Any:
+        stem = run.stem
         base = f"/runs/{stem}"
-        series = rrb.Vertical(
-            rrb.TimeSeriesView(
-                name=f"{stem}: y, r", origin=base, contents=[f"{base}/y", f"{base}/r"]
-            ),
+        ys = [f"{base}/y", f"{base}/r"] + ([f"{base}/y_true"] if run.y_true is not None else [])
+        ys += [f"{base}/signals/raw_y"] if "raw_y" in run.signals else []
+        title = f"{stem}: y (as the controller saw it), y_true (noise-free), r" if run.y_true is not None else \
+            f"{stem}: y, r"
+        views = [
+            rrb.TimeSeriesView(name=title, origin=base, contents=ys),
             rrb.TimeSeriesView(name=f"{stem}: u", origin=base, contents=[f"{base}/u"]),
-            rrb.TimeSeriesView(
-                name=f"{stem}: e",
-                origin=base,
-                contents=[f"{base}/e", f"{base}/switches", f"{base}/extrema"],
-            ),
-            rrb.TimeSeriesView(
-                name=f"{stem}: tau_obs inhibition", origin=base, contents=[f"{base}/inhibition"]
-            ),
-            row_shares=[3, 2, 3, 1],
-        )
-        side = rrb.Vertical(
-            rrb.Spatial2DView(name=f"{stem}: phase (e, de/dt)", origin=f"{base}/phase"),
-            rrb.TextLogView(name=f"{stem}: log", origin=base, contents=[f"{base}/log"]),
-            row_shares=[3, 1],
-        )
+            rrb.TimeSeriesView(name=f"{stem}: e", origin=base,
+                               contents=[f"{base}/e", f"{base}/switches", f"{base}/extrema"]),
+        ]
+        shares = [3, 2, 3]
+        if run.relay is not None:
+            views.append(rrb.TimeSeriesView(name=f"{stem}: tau_obs inhibition", origin=base,
+                                            contents=[f"{base}/inhibition"]))
+            shares.append(1)
+        others = [k for k in run.signals if k != "raw_y"]
+        if others:
+            views.append(rrb.TimeSeriesView(name=f"{stem}: {', '.join(others)}", origin=f"{base}/signals",
+                                            contents=[f"{base}/signals/{k}" for k in others]))
+            shares.append(2)
+        series = rrb.Vertical(*views, row_shares=shares)
+        side_views = [rrb.Spatial2DView(name=f"{stem}: phase (e, de/dt)", origin=f"{base}/phase")]
+        side_shares = [3]
+        if run.qpos is not None:
+            side_views.append(rrb.Spatial3DView(name=f"{stem}: vehicle (thrust arrows)", origin=f"{base}/world"))
+            side_shares.append(3)
+        side_views.append(rrb.TextLogView(name=f"{stem}: log", origin=base, contents=[f"{base}/log"]))
+        side_shares.append(1)
+        side = rrb.Vertical(*side_views, row_shares=side_shares)
         return rrb.Horizontal(series, side, column_shares=[3, 2], name=stem)
 
-    layouts = [run_layout(s) for s in stems]
+    layouts = [run_layout(r) for r in runs]
     root = layouts[0] if len(layouts) == 1 else rrb.Tabs(*layouts)
     return rrb.Blueprint(root, collapse_panels=False)
 
 
-def _send_series(rec: Any, path: str, t: np.ndarray, values: np.ndarray) -> None:
+def _send_series(rec: Any, path: str, t: np.ndarray, values: np.ndarray) -> int:
+    """Scalars on the timeline; non-finite samples are skipped. Returns the rows sent."""
     import rerun as rr
 
+    v = np.asarray(values, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    ok = np.isfinite(v) & np.isfinite(t)
+    if not ok.any():
+        return 0
     rec.send_columns(
         path,
-        indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=np.float64))],
-        columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)),
+        indexes=[rr.TimeColumn(TIMELINE, duration=t[ok])],
+        columns=rr.Scalars.columns(scalars=v[ok]),
     )
+    return int(ok.sum())
 
 
-def _log_run(rec: Any, run: Run, stem: str, rate_hz: float) -> dict[str, Any]:
+_STYLE = {
+    "r": ("r", [150, 150, 150], None),
+    "y": ("y (as the controller saw it)", [31, 119, 180], None),
+    "y_true": ("y_true (noise-free)", [23, 190, 207], None),
+    "e": ("e = r - y", [44, 160, 44], None),
+    "u": ("u", [214, 39, 40], "StepAfter"),
+}
+
+
+def _log_run(rec: Any, run: ReplayRun) -> dict[str, Any]:
     import rerun as rr
 
-    d = run.data
-    s = run.spec
-    base = f"runs/{stem}"
-    e = d.r - d.y
+    base = f"runs/{run.stem}"
+    t = np.asarray(run.t, dtype=np.float64)
+    e = run.r - run.y
     rows: dict[str, int] = {}
 
-    styles = {
-        "r": rr.SeriesLines(names="r", colors=[150, 150, 150]),
-        "y": rr.SeriesLines(names="y", colors=[31, 119, 180]),
-        "e": rr.SeriesLines(names="e = r - y", colors=[44, 160, 44]),
-        "u": rr.SeriesLines(names="u", colors=[214, 39, 40], interpolation_mode="StepAfter"),
-    }
-    for name, values in (("r", d.r), ("y", d.y), ("e", e), ("u", d.u)):
-        rec.log(f"{base}/{name}", styles[name], static=True)
-        _send_series(rec, f"{base}/{name}", d.t, values)
-        rows[f"{base}/{name}"] = int(values.size)
+    series = [("r", run.r), ("y", run.y), ("e", e), ("u", run.u)]
+    if run.y_true is not None and np.shape(run.y_true) == t.shape:
+        series.insert(2, ("y_true", run.y_true))
+    for name, values in series:
+        label, color, interp = _STYLE[name]
+        style = rr.SeriesLines(names=label, colors=[color], **({"interpolation_mode": interp} if interp else {}))
+        rec.log(f"{base}/{name}", style, static=True)
+        rows[f"{base}/{name}"] = _send_series(rec, f"{base}/{name}", t, values)
+    for name, values in run.signals.items():
+        v = np.asarray(values, dtype=np.float64)
+        m = min(v.size, t.size)
+        rec.log(f"{base}/signals/{name}", rr.SeriesLines(names=name), static=True)
+        rows[f"{base}/signals/{name}"] = _send_series(rec, f"{base}/signals/{name}", t[:m], v[:m])
 
-    relay = s.kind in _RELAY_KINDS
-    sw = sign_changes(d.u, s.bias if relay else 0.0)
+    relay = run.relay is not None and run.kind in _RELAY_KINDS
+    bias = float(run.relay.get("bias") or 0.0) if relay else 0.0
+    fin = np.isfinite(run.u) & np.isfinite(e)
+    sw = sign_changes(np.where(fin, run.u, bias), bias)
     rec.log(
         f"{base}/switches",
         rr.SeriesPoints(
@@ -227,31 +287,33 @@ def _log_run(rec: Any, run: Run, stem: str, rate_hz: float) -> dict[str, Any]:
         ),
         static=True,
     )
-    if sw.size:
-        _send_series(rec, f"{base}/switches", d.t[sw], e[sw])
-    rows[f"{base}/switches"] = int(sw.size)
+    rows[f"{base}/switches"] = _send_series(rec, f"{base}/switches", t[sw], e[sw]) if sw.size else 0
 
     info: dict[str, Any] = {
-        "file": s.file,
-        "stem": stem,
-        "kind": s.kind,
-        "rows": int(d.t.size),
-        "t0": float(d.t[0]),
-        "t1": float(d.t[-1]),
+        "file": run.info.get("file", run.label),
+        "label": run.label,
+        "stem": run.stem,
+        "kind": run.kind,
+        "rows": int(t.size),
+        "t0": float(t[0]),
+        "t1": float(t[-1]),
         "switches": int(sw.size),
     }
+    info.update({k: v for k, v in run.info.items() if k != "file"})
 
     messages: list[tuple[str, str]] = [
-        ("INFO", f"{s.file}: {s.kind} run, {d.t.size} samples, t = {d.t[0]:.6g} .. {d.t[-1]:.6g} s, "
+        ("INFO", f"{run.label}: {run.kind} run, {t.size} samples, t = {t[0]:.6g} .. {t[-1]:.6g} s, "
                  f"{sw.size} sign changes of u"),
+        *run.notes,
     ]  # fmt: skip
     if relay:
-        rep = recompute_relay(run, rate_hz)
-        tol = 1e-9 * max(1.0, abs(s.h) + abs(s.bias))
-        bad = np.flatnonzero(np.abs(rep.u - d.u) > tol)
+        rep = recompute_relay_e(np.where(fin, e, 0.0), run.kind, run.relay, run.rate_hz)
+        p = run.relay
+        tol = 1e-9 * max(1.0, abs(p["h"]) + abs(bias))
+        bad = np.flatnonzero(fin & (np.abs(rep.u - run.u) > tol))
         info.update(
             extrema=int(rep.ext_idx.size),
-            windows=[[float(d.t[a]), float(d.t[b])] for a, b in rep.windows],
+            windows=[[float(t[a]), float(t[b])] for a, b in rep.windows],
             n_obs=rep.n_obs,
             u_mismatch=int(bad.size),
             recomputed_switches=int(rep.switch_idx.size),
@@ -263,11 +325,10 @@ def _log_run(rec: Any, run: Run, stem: str, rate_hz: float) -> dict[str, Any]:
             ),
             static=True,
         )
-        if rep.ext_idx.size:
-            _send_series(rec, f"{base}/extrema", d.t[rep.ext_idx], rep.ext_e)
-        rows[f"{base}/extrema"] = int(rep.ext_idx.size)
+        rows[f"{base}/extrema"] = (_send_series(rec, f"{base}/extrema", t[rep.ext_idx], rep.ext_e)
+                                   if rep.ext_idx.size else 0)
 
-        inhibit = np.zeros(d.t.size)
+        inhibit = np.zeros(t.size)
         for a, b in rep.windows:
             inhibit[a : b + 1] = 1.0
         rec.log(
@@ -276,35 +337,55 @@ def _log_run(rec: Any, run: Run, stem: str, rate_hz: float) -> dict[str, Any]:
                            interpolation_mode="StepAfter"),
             static=True,
         )  # fmt: skip
-        _send_series(rec, f"{base}/inhibition", d.t, inhibit)
-        rows[f"{base}/inhibition"] = int(d.t.size)
+        rows[f"{base}/inhibition"] = _send_series(rec, f"{base}/inhibition", t, inhibit)
 
         if bad.size:
             messages.append(
-                ("WARN", f"{s.file}: recomputed {s.kind} output differs from logged u at {bad.size} of "
-                         f"{d.t.size} samples (first at t = {d.t[bad[0]]:.6g} s)")
+                ("WARN", f"{run.label}: recomputed {run.kind} output differs from logged u at {bad.size} of "
+                         f"{t.size} samples (first at t = {t[bad[0]]:.6g} s)")
             )  # fmt: skip
         else:
             messages.append(
-                ("INFO", f"{s.file}: recomputed {s.kind} output matches logged u at all {d.t.size} samples "
-                         f"({rep.switch_idx.size} switches, {rep.ext_idx.size} accepted extrema)")
+                ("INFO", f"{run.label}: recomputed {run.kind} output matches logged u at all {int(fin.sum())} "
+                         f"samples ({rep.switch_idx.size} switches, {rep.ext_idx.size} accepted extrema)")
             )  # fmt: skip
     else:
-        messages.append(("INFO", f"{s.file}: step run, no relay to recompute"))
+        messages.append(("INFO", f"{run.label}: {run.kind} run, no relay to recompute"))
 
-    pts = phase_portrait(d.t, e)
+    ok = np.isfinite(e)
+    pts = phase_portrait(t[ok], e[ok])
     rec.log(f"{base}/phase", rr.LineStrips2D([pts], colors=[44, 160, 44], radii=-1.0), static=True)
-    rows[f"{base}/phase"] = 1
+    rows[f"{base}/phase"] = 1  # one static row
     info["phase_points"] = int(pts.shape[0])
+    static = [f"{base}/phase"]
+    if run.y_true is not None and np.shape(run.y_true) == t.shape:
+        # the noise-free cycle: with sensor noise de/dt of the measured e is mostly noise
+        e_true = run.r - run.y_true
+        okt = np.isfinite(e_true)
+        rec.log(f"{base}/phase/noise_free", rr.LineStrips2D([phase_portrait(t[okt], e_true[okt])],
+                                                            colors=[23, 190, 207], radii=-1.0), static=True)
+        static.append(f"{base}/phase/noise_free")
+
+    if run.qpos is not None and np.shape(run.qpos) == (t.size, 6):
+        from uavsim.viz.vehicle3d import log_vehicle
+
+        rf = run.rotor_force if run.rotor_force is not None and np.shape(run.rotor_force) == (t.size, 6) else None
+        rows.update(log_vehicle(rec, base, t, run.qpos, rf, timeline=TIMELINE))
+        static += [f"{base}/world/vehicle/body", f"{base}/world/vehicle/arms", f"{base}/world/vehicle/rotors",
+                   f"{base}/world/path"]
+        info["vehicle"] = True
+    else:
+        info["vehicle"] = False
 
     rec.send_columns(
         f"{base}/log",
-        indexes=[rr.TimeColumn(TIMELINE, duration=np.full(len(messages), float(d.t[0])))],
+        indexes=[rr.TimeColumn(TIMELINE, duration=np.full(len(messages), float(t[0])))],
         columns=rr.TextLog.columns(text=[m for _, m in messages], level=[lv for lv, _ in messages]),
     )
     rows[f"{base}/log"] = len(messages)
     info["messages"] = [m for _, m in messages]
     info["entities"] = rows
+    info["static_entities"] = static
     return info
 
 
@@ -339,52 +420,85 @@ def select_runs(session: Session, run: str | None) -> list[Run]:
     return chosen[:1]
 
 
-def replay_session(
+def _default_rrd(source: str, path: Path, info: dict[str, Any]) -> Path:
+    if source == "session":
+        return Path(info["session"]) / DEFAULT_RRD
+    if source == "dataset":
+        return path.with_name(f"{path.stem}-class{info['class']}-episode{info['episode']}.replay.rrd")
+    run_file = Path(info["run_file"])
+    return run_file.with_name(run_file.name.removesuffix(".run.npz") + ".replay.rrd")
+
+
+def replay(
     path: str | os.PathLike,
     rrd_path: str | os.PathLike | None = None,
     *,
     run: str | None = None,
+    cls: int | None = None,
+    episode: int | None = None,
     spawn: bool = False,
+    resimulate: bool = True,
 ) -> dict[str, Any]:
-    """Log a session to Rerun: save it to ``rrd_path`` and/or spawn a viewer.
+    """Log a session, a dataset episode or a scenario run to Rerun: save it and/or spawn a viewer.
 
     Parameters
     ----------
     path : path-like
-        Session folder or its ``session.toml``.
+        A session folder (or its ``session.toml``), a dataset file (``.h5``),
+        or a scenario run (its ``.rrd`` with the ``.run.npz`` beside it, or the
+        ``.run.npz``); see :func:`uavsim.viz.sources.detect_source`.
     rrd_path : path-like, optional
         File to write. When None and ``spawn`` is False (or no viewer can be
-        spawned), ``<session>/replay.rrd`` is written.
+        spawned): ``<session>/replay.rrd``, ``<dataset>-class<C>-episode<E>.replay.rrd``
+        or ``<run>.replay.rrd`` beside the source.
     run : str, optional
-        Replay only this run (its file name or stem).
+        Sessions: only this run (file name or stem); scenario runs: only this
+        episode (``altitude/relay`` or ``altitude_relay``).
+    cls, episode : int, optional
+        Datasets only: the label (0..n_classes-1) and the index among its kept
+        episodes (default 0 and 0).
     spawn : bool
         Open the Rerun viewer (if it can be started).
+    resimulate : bool
+        Simulate again where the source allows it (datasets, noise-free
+        simulated sessions) for the noise-free output and the vehicle pose.
 
     Returns
     -------
     dict
-        ``session``, ``rrd`` (path written or None), ``spawned``, ``timeline``
-        and ``runs``: per run its file, entity stem, kind, rows, time range,
-        switch count, row count per entity path and, for relay runs, the
-        accepted extrema, inhibition windows (s) and ``u_mismatch`` (samples
-        where the recomputed relay output differs from the logged ``u``).
+        ``source`` (``session``/``dataset``/``scenario``), the source's fields
+        (sessions: ``session``, ``loop``, ``control_rate_hz``; datasets:
+        ``dataset``, ``class``, ``episode``, ``row``, ``resimulated``, ...;
+        scenario runs: ``scenario``, ``run_file``), ``rrd`` (path written or
+        None), ``spawned``, ``timeline`` and ``runs``: per run its file or
+        label, entity stem, kind, rows, time range (s), switch count, rows per
+        temporal entity path (``entities``), its ``static_entities``,
+        ``vehicle`` (pose logged) and, for relay runs, the accepted extrema,
+        inhibition windows (s) and ``u_mismatch`` (samples where the
+        recomputed relay output differs from the logged ``u``).
 
     Raises
     ------
     UserError
-        Malformed session, unknown run, or an unwritable output file.
+        Unreadable or malformed source, unknown run, class or episode out of
+        range, options that do not fit the source, or an unwritable output file.
     """
+    os.environ.setdefault("RERUN_ANALYTICS", "0")
     import rerun as rr
 
-    session = read_session(path)
-    runs = select_runs(session, run)
-    stems: list[str] = []
-    for r in runs:
-        stem = entity_stem(r.spec.file)
-        while stem in stems:
-            stem += "_"
-        stems.append(stem)
-    blueprint = _blueprint(stems)
+    src = Path(path)
+    source = detect_source(src)
+    if source != "dataset" and (cls is not None or episode is not None):
+        raise UserError(f"{src}: --class and --episode choose a dataset episode; this is a {source}")
+    if source == "session":
+        runs, info = session_runs(src, run, resimulate=resimulate)
+    elif source == "dataset":
+        if run is not None:
+            raise UserError(f"{src}: --run picks a session run or scenario episode; use --class and --episode")
+        runs, info = dataset_runs(src, cls or 0, episode or 0, resimulate=resimulate)
+    else:
+        runs, info = scenario_runs(src, run)
+    blueprint = _blueprint(runs)
 
     rec = rr.RecordingStream(APP_ID, send_properties=False)
     sinks: list[Any] = []
@@ -395,33 +509,56 @@ def replay_session(
             spawned = True
         except Exception:  # no viewer available: fall back to a file
             spawned = False
+    out: Path | None = None
     if rrd_path is None and not spawned:
-        rrd_path = Path(session.path) / DEFAULT_RRD
-    if rrd_path is not None:
-        rrd_path = Path(rrd_path)
-        if rrd_path.is_dir():
-            raise UserError(f"{rrd_path}: is a folder, expected an .rrd file path")
-        if not rrd_path.parent.is_dir():
-            raise UserError(f"{rrd_path}: folder {rrd_path.parent} does not exist")
-        sinks.append(rr.FileSink(str(rrd_path)))
+        out = _default_rrd(source, src, info)
+    elif rrd_path is not None:
+        out = Path(rrd_path)
+    if out is not None:
+        if out.is_dir():
+            raise UserError(f"{out}: is a folder, expected an .rrd file path")
+        if not out.parent.is_dir():
+            raise UserError(f"{out}: folder {out.parent} does not exist")
+        sinks.append(rr.FileSink(str(out)))
         if spawned:
             sinks.append(rr.GrpcSink())
         rec.set_sinks(*sinks, default_blueprint=blueprint)
 
-    infos = [
-        _log_run(rec, r, stem, session.control_rate_hz) for r, stem in zip(runs, stems, strict=True)
-    ]
+    infos = [_log_run(rec, r) for r in runs]
     rec.flush()
     rec.disconnect()
-    if rrd_path is not None:
-        if not rrd_path.is_file():
-            raise UserError(f"{rrd_path}: recording was not written")
+    if out is not None and not out.is_file():
+        raise UserError(f"{out}: recording was not written")
     return {
-        "session": str(session.path),
-        "loop": session.loop,
-        "control_rate_hz": session.control_rate_hz,
-        "rrd": str(rrd_path) if rrd_path is not None else None,
+        "source": source,
+        **{k: v for k, v in info.items() if k != "result"},
+        "rrd": str(out) if out is not None else None,
         "spawned": spawned,
         "timeline": TIMELINE,
         "runs": infos,
     }
+
+
+def replay_session(
+    path: str | os.PathLike,
+    rrd_path: str | os.PathLike | None = None,
+    *,
+    run: str | None = None,
+    spawn: bool = False,
+) -> dict[str, Any]:
+    """:func:`replay` of a session folder (refuses other sources).
+
+    Parameters
+    ----------
+    path : path-like
+        Session folder or its ``session.toml``.
+    rrd_path : path-like, optional
+        File to write (default without a viewer: ``<session>/replay.rrd``).
+    run : str, optional
+        Replay only this run (its file name or stem).
+    spawn : bool
+        Open the Rerun viewer (if it can be started).
+    """
+    if detect_source(path) != "session":
+        raise UserError(f"{path}: not a session folder (use uavsim.viz.replay.replay for datasets and scenario runs)")
+    return replay(path, rrd_path, run=run, spawn=spawn)
