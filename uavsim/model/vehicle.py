@@ -184,6 +184,8 @@ def hexarotor_mjcf(
   <sensor>
     <jointpos name="x" joint="x" nsample="{nsample}" interp="linear"/>
     <jointpos name="y" joint="y" nsample="{nsample}" interp="linear"/>
+    <jointpos name="x_step" joint="x"/>
+    <jointpos name="y_step" joint="y"/>
     <jointpos name="z" joint="z"/>
     <jointpos name="roll" joint="roll"/>
     <jointpos name="pitch" joint="pitch"/>
