@@ -9,8 +9,8 @@ fits every effect of the vocabulary by batched grid search, and names the
 one that closes the gap -- or ``none``.
 
 Modules: :mod:`~uavsim.gap.features` (features, z-scores, the gap),
-:mod:`~uavsim.gap.simulate` (sessions on ``LoopBatch``),
-:mod:`~uavsim.gap.vector_effects` (per-episode effects for batched fits),
+:mod:`~uavsim.gap.simulate` (sessions on ``LoopBatch``, with per-episode
+registry effects for batched fits),
 :mod:`~uavsim.gap.workflow` (fit, rank, decide), :mod:`~uavsim.gap.report`
 (plots, Rerun recording, updated model), :mod:`~uavsim.gap.hidden`
 (hidden-effect sessions for tests and ``uavsim bench gap``).

@@ -7,8 +7,8 @@ oscillation amplitude, and one effect of the vocabulary (or ``none``) with a
 random magnitude chosen relative to the loop's own scales (period, relay
 amplitude, oscillation amplitude) so that the effect is observable while the
 loop still oscillates. It then flies four runs on the MuJoCo loop with the
-*registry* effects of :mod:`uavsim.model.effects` (not the gap workflow's
-vectorized copies): NP-MRFT at beta = -0.73 with h and 2 h (amplitude
+registry effects of :mod:`uavsim.model.effects` at one scalar value
+(the workflow fits with the same effects at per-episode values): NP-MRFT at beta = -0.73 with h and 2 h (amplitude
 dependence), NP-MRFT at beta = -0.3 (frequency dependence) and a PD step with
 half the tuning rule's gains (so that a hidden delay cannot destabilize it).
 Attitude relays use ``h`` such that the cycle stays near 0.1 rad. The session carries the base ``[model]`` and no

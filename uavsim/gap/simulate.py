@@ -11,10 +11,15 @@ grid is one batch.
     plans = [Episode(run=0), Episode(run=1, effect="delay", value=0.02)]
     sims = simulate(session, model, plans, seed=3)
     sims[1].y      # (T_run,) the measurement the controller saw, for run 1 with the extra delay
+
+The episodes' effects are the registry effects of :mod:`uavsim.model.effects`
+with one parameter value per episode (:func:`batch_effects`), the same code
+that flies sessions everywhere else.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,14 +28,35 @@ import numpy as np
 from uavsim.control.pd import PD
 from uavsim.control.relay import NPMRFT
 from uavsim.errors import UserError
-from uavsim.formats.session import ModelSpec, Run, Session
-from uavsim.gap.vector_effects import batch_effects
+from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Run, Session
 from uavsim.lumped.params import LumpedParams
+from uavsim.model.effects import Effect, make_effect
 from uavsim.sim.runner import LoopBatch
 
-__all__ = ["Episode", "SimRun", "simulate", "SUPPORTED_LOOPS"]
+__all__ = ["Episode", "SimRun", "simulate", "batch_effects", "IDENTITY", "SUPPORTED_LOOPS"]
 
 SUPPORTED_LOOPS = ("altitude", "roll", "pitch")
+
+#: Parameter value of each vocabulary effect that leaves the loop unchanged
+#: (``sample_hold``: the control rate, filled in by :func:`batch_effects`).
+IDENTITY: dict[str, float] = {
+    "delay": 0.0,
+    "gain": 1.0,
+    "lag": 0.0,
+    "rate_limit": math.inf,
+    "dead_zone": 0.0,
+    "saturation": math.inf,
+    "bias": 0.0,
+    "noise": 0.0,
+    "quantization": 0.0,
+    "sample_hold": math.nan,
+    "lowpass": math.inf,
+}
+#: Order of the chains, as the session generator applies them: model effects,
+#: then on the command lag, rate limit, dead zone, saturation, bias, and on the
+#: measurement the (model's plus extra) noise, quantization, sample-and-hold, low-pass.
+CHAIN = ("delay", "gain", "lag", "rate_limit", "dead_zone", "saturation", "bias",
+         "noise", "quantization", "sample_hold", "lowpass")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -103,6 +129,55 @@ class _Mixed:
         if self.pd is None:
             return ur
         return np.where(self.is_step, self.pd(e), ur)
+
+
+def batch_effects(
+    names: Sequence[str],
+    values: Sequence[float],
+    noise_std: float | np.ndarray,
+    rate_hz: float,
+    base: dict[str, float] | None = None,
+) -> list[Effect]:
+    """Registry effects for a batch whose episode ``i`` has the effect ``names[i]`` at ``values[i]``.
+
+    Each vocabulary effect that any episode uses is built once with an (n,)
+    parameter array: the episode's own value, the session's value (``base``),
+    or the identity value (:data:`IDENTITY`) for episodes without it.
+
+    Parameters
+    ----------
+    names : sequence of str, length n
+        A vocabulary name per episode (``"none"`` for the bare model).
+    values : sequence of float, length n
+        That effect's single parameter, in the vocabulary's units (ignored for ``none``).
+    noise_std : float or (n,)
+        The model's measurement noise, output units; an extra ``noise`` adds in quadrature.
+    rate_hz : float
+        Control rate, Hz.
+    base : dict of str to float, optional
+        Effects every episode has (the session's ``[[effects]]``), name -> value;
+        an episode's own effect of the same name replaces it.
+
+    Returns
+    -------
+    list of Effect
+        Model, command and measurement effects, in :data:`CHAIN` order, for :class:`LoopBatch`.
+    """
+    n = len(names)
+    identity = dict(IDENTITY, sample_hold=float(rate_hz))
+    par = {k: np.full(n, v, dtype=np.float64) for k, v in identity.items()}
+    for name, v in (base or {}).items():
+        par[name][:] = float(v)
+    for i, (name, v) in enumerate(zip(names, values, strict=True)):
+        if name != "none":
+            par[name][i] = float(v)
+    # one noise draw per sample, as the generator's model noise followed by an extra noise would give
+    par["noise"] = np.sqrt(np.broadcast_to(np.asarray(noise_std, dtype=np.float64), (n,)) ** 2 + par["noise"] ** 2)
+    return [
+        make_effect(name, **{EFFECT_PARAMS[name][0]: par[name]})
+        for name in CHAIN
+        if np.any(par[name] != identity[name])  # effects no episode uses cost nothing
+    ]
 
 
 def model_params(session: Session, model: ModelSpec) -> LumpedParams:

@@ -181,7 +181,7 @@ class VisionEpisode:
             if QP is not None:
                 QP[:, k] = lb.qpos
             try:
-                lb.batch.step(nstep=lb.rate_steps)
+                lb.advance()
             except Exception as exc:  # a MuJoCo simulation error ends the faulty episodes
                 for i in getattr(exc, "ids", range(n)):
                     if not diverged[i]:

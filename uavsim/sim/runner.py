@@ -203,7 +203,13 @@ class LoopBatch:
         b = mjbatch.Batch(self.model, n, self.nthread)
         b.expand("dof_damping")[:] = m.damping
         b.expand("actuator_dynprm")[:, :, 0] = m.T_prop[:, None]
-        b.expand("actuator_delay")[:] = m.actuator_delay[:, None]
+        # MuJoCo's history cannot interpolate inside the newest step (a delay in
+        # (0, dt] acts as dt): such delays are applied by advance() instead
+        d = np.asarray(m.actuator_delay, dtype=np.float64)
+        self._sub_step = (d > 0.0) & (d < self.dt)
+        self._sub_frac = np.where(self._sub_step, d / self.dt, 0.0)[:, None]
+        self._ctrl_prev = np.zeros((n, self.model.nu))
+        b.expand("actuator_delay")[:] = np.where(self._sub_step, 0.0, d)[:, None]
         if self.lateral:
             # sensordata lags the state by one substep (it is computed before the
             # last integration), which is part of the outer delay
@@ -246,6 +252,32 @@ class LoopBatch:
             c = np.cos(self.qpos[:, 3]) * np.cos(self.qpos[:, 4])
             wrench[:, 0] += v.mass_kg * G * (1.0 / np.maximum(c, 0.2) - 1.0)
         self.ctrl[:] = wrench @ self._wrench_to_pwm
+
+    def advance(self) -> None:
+        """Step the physics over one control period with the command in ``ctrl``.
+
+        Episodes whose actuator delay ``d`` is under one physics step get, in
+        the first substep, the blend ``(d/dt) u_prev + (1 - d/dt) u`` of the
+        previous and the new command: what MuJoCo's linear history
+        interpolation gives for longer delays, which it cannot give inside the
+        newest step.
+
+        Raises
+        ------
+        mujoco.batch.SimulationError
+            As :meth:`mujoco.batch.Batch.step`.
+        """
+        new = self.ctrl.copy()
+        if self._sub_step.any():
+            f = self._sub_frac
+            self.ctrl[:] = np.where(self._sub_step[:, None], f * self._ctrl_prev + (1.0 - f) * new, new)
+            self.batch.step(nstep=1)
+            self.ctrl[:] = new
+            if self.rate_steps > 1:
+                self.batch.step(nstep=self.rate_steps - 1)
+        else:
+            self.batch.step(nstep=self.rate_steps)
+        self._ctrl_prev = new
 
     def state_buffers(self, T: int) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
         """Empty ``qpos`` and ``rotor_force`` records, (n, T, 6) each, or (None, None) when not recording."""
@@ -331,7 +363,7 @@ class LoopBatch:
             if QP is not None:
                 QP[:, k] = self.qpos
             try:
-                self.batch.step(nstep=self.rate_steps)
+                self.advance()
             except mjbatch.SimulationError as exc:
                 for i in exc.ids:
                     if not diverged[i]:

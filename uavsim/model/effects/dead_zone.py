@@ -4,21 +4,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class DeadZone(SignalEffect):
-    """Dead zone of half-width ``width`` (command units, >= 0)."""
+    """Dead zone of half-width ``width`` (command units, >= 0; scalar or (n,); 0 leaves u unchanged)."""
 
-    width: float = 0.0
+    width: Param = 0.0
     name = "dead_zone"
     target = "command"
 
     def validate(self) -> None:
         finite(self.name, width=self.width)
-        require(self.width >= 0, self.name, f"width must be >= 0, got {self.width}")
+        require_each(np.asarray(self.width) >= 0, self.name, self.width, lambda v: f"width must be >= 0, got {v}")
+
+    def reset(self, n, rate_hz, rng):
+        super().reset(n, rate_hz, rng)
+        self._width = batched(self.width, n, self.name, "width")
 
     def __call__(self, u: np.ndarray, k: int) -> np.ndarray:
-        return np.sign(u) * np.maximum(np.abs(u) - self.width, 0.0)
+        # sign(u) |u| == u exactly, so width 0 is the identity
+        return np.sign(u) * np.maximum(np.abs(u) - self._width, 0.0)

@@ -2,19 +2,22 @@
 
 from dataclasses import dataclass
 
-from uavsim.model.effects.base import Effect, finite, register, require
+import numpy as np
+
+from uavsim.model.effects.base import Effect, Param, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Delay(Effect):
-    """Extra loop delay ``delay`` (s), realized by MuJoCo's actuator delay buffers."""
+    """Extra loop delay ``delay`` (s; scalar or (n,)), realized by MuJoCo's actuator delay buffers."""
 
-    delay: float = 0.0
+    delay: Param = 0.0
     name = "delay"
     target = "model"
 
     def validate(self) -> None:
         finite(self.name, delay=self.delay)
-        require(self.delay >= 0, self.name, f"delay must be >= 0 s, got {self.delay}")
-        require(self.delay <= 1.0, self.name, f"delay {self.delay} s is longer than the 1 s the buffers hold")
+        d = np.asarray(self.delay)
+        require_each(d >= 0, self.name, self.delay, lambda v: f"delay must be >= 0 s, got {v}")
+        require_each(d <= 1.0, self.name, self.delay, lambda v: f"delay {v} s is longer than the 1 s the buffers hold")

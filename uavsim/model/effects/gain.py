@@ -2,18 +2,20 @@
 
 from dataclasses import dataclass
 
-from uavsim.model.effects.base import Effect, finite, register, require
+import numpy as np
+
+from uavsim.model.effects.base import Effect, Param, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Gain(Effect):
-    """Loop gain times ``factor`` (> 0)."""
+    """Loop gain times ``factor`` (> 0; scalar or (n,))."""
 
-    factor: float = 1.0
+    factor: Param = 1.0
     name = "gain"
     target = "model"
 
     def validate(self) -> None:
         finite(self.name, factor=self.factor)
-        require(self.factor > 0, self.name, f"factor must be > 0, got {self.factor}")
+        require_each(np.asarray(self.factor) > 0, self.name, self.factor, lambda v: f"factor must be > 0, got {v}")

@@ -4,38 +4,41 @@ MuJoCo's ``filterexact`` dynamics already carry the propulsion lag T_prop, and
 an actuator has one dynamics stage, so the extra lag runs on the command at
 the control rate. The command is piecewise constant between samples, so the
 discretization ``x+ = a x + (1 - a) u``, ``a = exp(-Ts/T)`` is exact at the
-samples; the lagged command is then held for one sample.
+samples; the lagged command is then held for one sample. ``T = 0`` means no
+lag stage at all (the command passes unchanged, without the one-sample hold),
+so that episodes of a batch without the effect can share it.
 """
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Lag(SignalEffect):
-    """First-order lag of time constant ``T`` (s) on the command."""
+    """First-order lag of time constant ``T`` (s, >= 0; scalar or (n,); 0: no lag) on the command."""
 
-    T: float = 0.05
+    T: Param = 0.05
     name = "lag"
     target = "command"
 
     def validate(self) -> None:
         finite(self.name, T=self.T)
-        require(self.T > 0, self.name, f"T must be > 0 s, got {self.T}")
+        require_each(np.asarray(self.T) >= 0, self.name, self.T, lambda v: f"T must be >= 0 s (0: no lag), got {v}")
 
     def reset(self, n, rate_hz, rng):
         super().reset(n, rate_hz, rng)
-        self.a = math.exp(-1.0 / (rate_hz * self.T))
-        self.x = None
+        T = np.broadcast_to(batched(self.T, n, self.name, "T"), (n,))
+        self._on = T > 0
+        self._all_on = bool(self._on.all())
+        with np.errstate(divide="ignore"):
+            self.a = np.where(self._on, np.exp(-1.0 / (rate_hz * np.where(self._on, T, 1.0))), 0.0)
+        self.x = np.zeros(n)
 
     def __call__(self, u: np.ndarray, k: int) -> np.ndarray:
-        if self.x is None:
-            self.x = np.zeros_like(u)
-        out = self.x.copy()
+        out = self.x if self._all_on else np.where(self._on, self.x, u)
         self.x = self.a * self.x + (1.0 - self.a) * u
         return out

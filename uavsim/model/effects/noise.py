@@ -4,29 +4,25 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Noise(SignalEffect):
-    """Add zero-mean Gaussian noise of standard deviation ``std`` (output units).
+    """Add zero-mean Gaussian noise of standard deviation ``std`` (output units, >= 0; scalar or (n,))."""
 
-    ``std`` may be an array (n,) to give each episode its own level.
-    """
-
-    std: float = 0.0
+    std: Param = 0.0
     name = "noise"
     target = "measurement"
 
     def validate(self) -> None:
-        s = np.asarray(self.std, dtype=np.float64)
-        require(bool(np.all(np.isfinite(s))), self.name, "std must be finite")
-        require(bool(np.all(s >= 0)), self.name, f"std must be >= 0, got {self.std}")
+        finite(self.name, std=self.std)
+        require_each(np.asarray(self.std) >= 0, self.name, self.std, lambda v: f"std must be >= 0, got {v}")
 
-    def params(self):
-        s = np.asarray(self.std)
-        return {"std": float(s) if s.ndim == 0 else s}
+    def reset(self, n, rate_hz, rng):
+        super().reset(n, rate_hz, rng)
+        self._std = batched(self.std, n, self.name, "std")
 
     def __call__(self, y: np.ndarray, k: int) -> np.ndarray:
-        return y + self.std * self.rng.standard_normal(y.shape)
+        return y + self._std * self.rng.standard_normal(y.shape)

@@ -4,21 +4,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Quantization(SignalEffect):
-    """Round the measurement to multiples of ``step`` (output units, > 0)."""
+    """Round the measurement to multiples of ``step`` (output units, >= 0; scalar or (n,); 0: unchanged)."""
 
-    step: float = 0.01
+    step: Param = 0.01
     name = "quantization"
     target = "measurement"
 
     def validate(self) -> None:
         finite(self.name, step=self.step)
-        require(self.step > 0, self.name, f"step must be > 0, got {self.step}")
+        require_each(np.asarray(self.step) >= 0, self.name, self.step,
+                     lambda v: f"step must be >= 0 (0: no quantization), got {v}")  # fmt: skip
+
+    def reset(self, n, rate_hz, rng):
+        super().reset(n, rate_hz, rng)
+        step = np.broadcast_to(batched(self.step, n, self.name, "step"), (n,))
+        self._on = step > 0
+        self._all_on = bool(self._on.all())
+        self._step = step if self._all_on else np.where(self._on, step, 1.0)
 
     def __call__(self, y: np.ndarray, k: int) -> np.ndarray:
-        return np.round(y / self.step) * self.step
+        q = np.round(y / self._step) * self._step
+        return q if self._all_on else np.where(self._on, q, y)

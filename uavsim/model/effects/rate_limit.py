@@ -4,29 +4,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, number, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class RateLimit(SignalEffect):
-    """Slew at most ``rate`` command units per second (sampled at the control rate)."""
+    """Slew at most ``rate`` command units per second (> 0; scalar or (n,); inf: no limit), at the control rate."""
 
-    rate: float = 1.0
+    rate: Param = 1.0
     name = "rate_limit"
     target = "command"
 
     def validate(self) -> None:
-        finite(self.name, rate=self.rate)
-        require(self.rate > 0, self.name, f"rate must be > 0 per s, got {self.rate}")
+        number(self.name, rate=self.rate)
+        require_each(np.asarray(self.rate) > 0, self.name, self.rate, lambda v: f"rate must be > 0 per s, got {v}")
 
     def reset(self, n, rate_hz, rng):
         super().reset(n, rate_hz, rng)
-        self.prev = None
+        rate = np.broadcast_to(batched(self.rate, n, self.name, "rate"), (n,))
+        self._on = np.isfinite(rate)
+        self._all_on = bool(self._on.all())
+        self._step = rate / self.rate_hz
+        self.prev = np.zeros(n)
 
     def __call__(self, u: np.ndarray, k: int) -> np.ndarray:
-        if self.prev is None:
-            self.prev = np.zeros_like(u)
-        step = self.rate / self.rate_hz
-        self.prev = self.prev + np.clip(u - self.prev, -step, step)
-        return self.prev.copy()
+        self.prev = self.prev + np.clip(u - self.prev, -self._step, self._step)
+        # prev + (u - prev) is not always u in floating point: unlimited episodes pass u itself
+        return self.prev.copy() if self._all_on else np.where(self._on, self.prev, u)

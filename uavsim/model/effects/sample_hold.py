@@ -4,38 +4,47 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import SignalEffect, finite, register, require
+from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class SampleHold(SignalEffect):
-    """Sample the measurement at ``rate_hz`` (<= the control rate) and hold it.
+    """Sample the measurement at ``rate_hz`` (> 0, <= the control rate; scalar or (n,)) and hold it.
 
     A new frame is taken at control sample ``k`` when ``floor(k * rate_hz /
     control_rate)`` advances, so a 60 Hz camera on a 200 Hz loop holds each
     frame for 3 or 4 samples, as a real frame clock beating against the loop.
+    ``rate_hz`` equal to the control rate takes every sample (no effect).
     """
 
-    rate_hz: float = 60.0
+    rate_hz: Param = 60.0
     name = "sample_hold"
     target = "measurement"
 
     def validate(self) -> None:
         finite(self.name, rate_hz=self.rate_hz)
-        require(self.rate_hz > 0, self.name, f"rate_hz must be > 0, got {self.rate_hz}")
+        require_each(np.asarray(self.rate_hz) > 0, self.name, self.rate_hz, lambda v: f"rate_hz must be > 0, got {v}")
 
     def reset(self, n, rate_hz, rng):
-        if self.rate_hz > rate_hz * (1 + 1e-9):
-            require(False, self.name, f"rate_hz {self.rate_hz} exceeds the control rate {rate_hz} Hz")
+        # not SignalEffect.reset: ``rate_hz`` is this effect's frame rate, not the control rate
+        hold = batched(self.rate_hz, n, self.name, "rate_hz")
+        require_each(np.asarray(hold) <= rate_hz * (1 + 1e-9), self.name, hold,
+                     lambda v: f"rate_hz {v} exceeds the control rate {rate_hz} Hz")  # fmt: skip
         self.control_rate_hz = float(rate_hz)
+        self._ratio = np.asarray(hold) / self.control_rate_hz
         self.n = int(n)
         self.rng = rng
         self.held = None
 
     def __call__(self, y: np.ndarray, k: int) -> np.ndarray:
-        frame = np.floor(k * self.rate_hz / self.control_rate_hz + 1e-9)
-        prev = np.floor((k - 1) * self.rate_hz / self.control_rate_hz + 1e-9)
-        if self.held is None or frame != prev:
+        frame = np.floor(k * self._ratio + 1e-9)
+        prev = np.floor((k - 1) * self._ratio + 1e-9)
+        if self.held is None:
             self.held = np.array(y, dtype=np.float64, copy=True)
+        elif self._ratio.ndim == 0:
+            if frame != prev:
+                self.held = np.array(y, dtype=np.float64, copy=True)
+        else:
+            self.held = np.where(frame != prev, y, self.held)
         return self.held.copy()

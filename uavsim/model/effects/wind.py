@@ -9,44 +9,47 @@ time constant ``gust_T``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import finite, register, require
+from uavsim.model.effects.base import Param, batched, finite, register, require_each
 from uavsim.model.effects.base_force import ForceEffect
 
 
 @register
-@dataclass
+@dataclass(eq=False)
 class Wind(ForceEffect):
-    """Steady wind of ``speed`` m/s from ``direction_deg`` (0 = blowing towards +x), plus gusts."""
+    """Steady wind of ``speed`` m/s from ``direction_deg`` (0 = blowing towards +x), plus gusts.
 
-    speed: float = 5.0
-    direction_deg: float = 0.0
-    gust_std: float = 0.0
-    gust_T: float = 1.0
+    Every parameter is a scalar or an (n,) array (one value per episode).
+    """
+
+    speed: Param = 5.0
+    direction_deg: Param = 0.0
+    gust_std: Param = 0.0
+    gust_T: Param = 1.0
     name = "wind"
 
     def validate(self) -> None:
         finite(self.name, speed=self.speed, direction_deg=self.direction_deg, gust_std=self.gust_std, gust_T=self.gust_T)
-        require(self.speed >= 0, self.name, f"speed must be >= 0 m/s, got {self.speed}")
-        require(self.gust_std >= 0, self.name, "gust_std must be >= 0 m/s")
-        require(self.gust_T > 0, self.name, "gust_T must be > 0 s")
+        require_each(np.asarray(self.speed) >= 0, self.name, self.speed, lambda v: f"speed must be >= 0 m/s, got {v}")
+        require_each(np.asarray(self.gust_std) >= 0, self.name, self.gust_std, lambda v: "gust_std must be >= 0 m/s")
+        require_each(np.asarray(self.gust_T) > 0, self.name, self.gust_T, lambda v: "gust_T must be > 0 s")
 
     def reset(self, n, rate_hz, rng, drag_Ns_per_m):
         super().reset(n, rate_hz, rng, drag_Ns_per_m)
+        p = {k: np.broadcast_to(batched(v, self.n, self.name, k), (self.n,)) for k, v in self.params().items()}
+        d = np.radians(p["direction_deg"])
+        self._w = np.stack([p["speed"] * np.cos(d), p["speed"] * np.sin(d), np.zeros(self.n)], axis=1)
         self.gust = np.zeros((self.n, 2))
-        self.a = math.exp(-1.0 / (rate_hz * self.gust_T))
+        self.a = np.exp(-1.0 / (rate_hz * p["gust_T"]))[:, None]
+        self._gust_scale = (p["gust_std"] * np.sqrt(1 - self.a[:, 0] ** 2))[:, None]
+        self._gusty = bool(np.any(p["gust_std"] > 0))
 
     def force(self, t: float, vel: np.ndarray) -> np.ndarray:
-        d = math.radians(self.direction_deg)
-        w = np.zeros((self.n, 3))
-        w[:, 0] = self.speed * math.cos(d)
-        w[:, 1] = self.speed * math.sin(d)
-        if self.gust_std > 0:
-            scale = self.gust_std * math.sqrt(1 - self.a**2)
-            self.gust = self.a * self.gust + scale * self.rng.standard_normal(self.gust.shape)
+        w = self._w.copy()
+        if self._gusty:
+            self.gust = self.a * self.gust + self._gust_scale * self.rng.standard_normal(self.gust.shape)
             w[:, :2] += self.gust
         return self.drag * w
