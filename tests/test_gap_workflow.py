@@ -159,3 +159,64 @@ def test_bench_summary_figures():
     labels = s["labels"]
     assert s["confusion"][labels.index("delay")][labels.index("lag")] == 1
     assert "named correctly 0.750" in format_summary(s)
+
+
+def _relay_through(b, a, period=0.5, rate=200.0, cycles=12):
+    """A square relay output of 50% duty and a plant's response to it (digital filter ``b``, ``a``)."""
+    from scipy import signal
+
+    t = np.arange(int(cycles * period * rate)) / rate
+    u = np.where(np.sin(2 * np.pi * t / period + 1e-9) >= 0, 1.0, -1.0)
+    return t, signal.lfilter(b, a, u), u
+
+
+def _response(b, a, f_hz, rate=200.0):
+    from scipy import signal
+
+    return signal.freqz(b, a, worN=[f_hz], fs=rate)[1][0]
+
+
+def test_r3_is_the_plants_harmonic_ratio():
+    """R3 = G(3jw)/G(jw) of the plant, here against scipy's exact digital frequency response."""
+    spec = RunSpec("a.csv", "mrft", beta=-0.5, h=1.0)
+    rate, period = 200.0, 0.5
+    p = math.exp(-1.0 / (rate * period / 6))  # two first-order stages: a smooth cycle
+    base_b, base_a = np.convolve([1 - p], [1 - p]), np.convolve([1, -p], [1, -p])
+    d = 6  # samples of pure delay
+    q = math.exp(-1.0 / (rate * 0.03))  # an extra 30 ms lag
+    plants = {
+        "base": (base_b, base_a),
+        "delay": (np.concatenate([np.zeros(d), base_b]), base_a),
+        "lag": (np.convolve(base_b, [1 - q]), np.convolve(base_a, [1, -q])),
+    }
+    r3 = {}
+    for name, (b, a) in plants.items():
+        f = run_features(spec, *_relay_through(b, a, period, rate))
+        r3[name] = np.exp(f["r3mag"] + 1j * f["r3arg"])
+        want = _response(b, a, 3 / period) / _response(b, a, 1 / period)
+        assert abs(r3[name] - want) < 0.03 * abs(want), (name, r3[name], want)
+    # a delay turns R3 by -2 w d and keeps its magnitude; a lag also shrinks it
+    w = 2 * np.pi / period
+    assert abs(r3["delay"]) == pytest.approx(abs(r3["base"]), rel=0.02)
+    assert np.angle(r3["delay"] / r3["base"]) == pytest.approx(-2 * w * d / rate, abs=0.03)
+    assert abs(r3["lag"]) < 0.9 * abs(r3["base"])
+
+
+def test_r3_undefined_when_the_relay_lacks_a_third_harmonic():
+    spec = RunSpec("a.csv", "mrft", beta=-0.5, h=1.0)
+    t = np.arange(2400) / 200.0
+    u = np.where((t % 0.6) < 0.2, 1.0, -1.0)  # duty 1/3: no 3rd harmonic
+    y = np.cumsum(u) / 200.0
+    f = run_features(spec, t, y - y.mean(), u)
+    assert math.isnan(f["r3mag"]) and math.isnan(f["r3arg"])
+    z = compare([f], [f])
+    assert (0, "r3mag") not in z and (0, "duty") in z
+
+
+def test_step_onset_is_dead_time_from_the_level_at_the_step():
+    spec = RunSpec("s.csv", "step", kp=1.0, kd=0.0, derivative_filter_hz=10.0, step=1.0, step_time=1.0)
+    t = np.arange(800) / 200.0
+    for dead in (0.05, 0.15):
+        y = 0.2 + np.where(t >= 1.0 + dead, 1 - np.exp(-(t - 1.0 - dead) / 0.05), 0.0)  # starts from 0.2
+        f = run_features(spec, t, y, np.zeros_like(t))
+        assert math.exp(f["onset"]) == pytest.approx(dead + 0.05 * math.log(1 / 0.95), abs=0.02)

@@ -7,6 +7,11 @@ edges of the relay output ``u``, which is noise-free):
   ``duty`` (fraction of the cycle with the relay high: asymmetry),
 * ``phase1`` (phase of y's fundamental against the relay's rising edge, rad),
   ``h2``, ``h3`` (2nd and 3rd harmonic over the fundamental),
+* ``r3mag`` (log), ``r3arg`` (rad): the process's own 3rd-harmonic response
+  relative to its fundamental, ``R3 = (Y3 / U3) / (Y1 / U1) = G(3 j w) / G(j w)``,
+  from the harmonics of y and u on the samples of every cycle (independent of
+  the relay's duty and of where the cycle sits in time; NaN when the relay's
+  3rd harmonic is too weak to divide by, duty near 1/3 or 2/3),
 * ``shape`` (RMS difference of the mean cycle waveform, normalized by amplitude:
   a distance, only defined between two runs),
 * residual spectrum: ``resid`` (log of a robust std of the second difference
@@ -15,9 +20,20 @@ edges of the relay output ``u``, which is noise-free):
   staircase levels of quantization and sample-and-hold).
 
 Step runs, after ``step_time`` and normalized by the step size:
-``overshoot``, ``rise`` (log 10-90% rise time), ``ise`` (log), ``settled``
-(mean error over the last 30%), ``trace`` (RMS difference of the smoothed
-responses: a distance), and the same residual features on the last 40%.
+``overshoot``, ``onset`` (log time to 5% of the step), ``rise`` (log 10-90%
+rise time), ``ise`` (log), ``settled`` (mean error over the last 30%),
+``trace`` (RMS difference of the smoothed responses: a distance), and the
+same residual features on the last 40%.
+
+Delay against lag: both add phase at the cycle's frequency, so both can match
+the period. At the cycle's frequency a pure delay ``tau`` turns ``R3`` by
+``-2 w tau`` and keeps its magnitude; a lag ``T`` also shrinks it, by
+``sqrt((1 + w^2 T^2) / (1 + 9 w^2 T^2))``. ``R3`` is a property of the
+process, of magnitude ``|G(3 j w) / G(j w)|`` (about 0.03-0.3 for these
+loops) whatever the relay did, so its log-magnitude and angle stay well
+conditioned where the phase of y's small 3rd harmonic would not (a relay bias
+shrinks that harmonic, not R3). On the step, a delay is dead time before the
+response starts (``onset``), a lag a rounded start.
 
 Dependence on amplitude and on frequency comes from comparing runs with
 different ``h`` and ``beta``: each run's features are compared separately, so
@@ -40,7 +56,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from uavsim.formats.session import RunSpec
-from uavsim.noise.analysis import relay_phase
+from uavsim.noise.analysis import cycle_harmonics, relay_phase
 
 __all__ = ["FLOORS", "DISTANCES", "run_features", "compare", "gap_value", "worst_window"]
 
@@ -48,11 +64,16 @@ __all__ = ["FLOORS", "DISTANCES", "run_features", "compare", "gap_value", "worst
 # of the switching at the control rate, finite record), in feature units.
 FLOORS: dict[str, float] = {
     "period": 0.01, "amplitude": 0.02, "offset": 0.02, "duty": 0.01, "phase1": 0.03,
-    "h2": 0.01, "h3": 0.01, "shape": 0.03, "resid": 0.08, "ac1": 0.05, "repeat": 0.02,
-    "overshoot": 0.02, "rise": 0.04, "ise": 0.05, "settled": 0.01, "trace": 0.03,
+    "h2": 0.01, "h3": 0.01, "r3mag": 0.02, "r3arg": 0.02, "shape": 0.03, "resid": 0.08, "ac1": 0.05, "repeat": 0.02,
+    "overshoot": 0.02, "onset": 0.02, "rise": 0.04, "ise": 0.05, "settled": 0.01, "trace": 0.03,
 }  # fmt: skip
 # Features that are distances between two runs (need both waveforms), not values.
 DISTANCES = ("shape", "trace")
+# Features that are angles, rad: differences are wrapped to [-pi, pi).
+ANGLES = ("phase1", "r3arg")
+# Below this |U3 / U1| the relay has too little 3rd harmonic for ``R3``
+# (a square wave of duty 1/2 has 1/3).
+_U3_MIN = 0.12
 _NPHASE = 64
 
 
@@ -105,16 +126,27 @@ def relay_features(t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
     w = np.mean(waves, axis=0)
     wn = (w - mean) / amp
     c = np.fft.rfft(wn) / _NPHASE
+    hy, hu = cycle_harmonics(y, edges, (1, 3)), cycle_harmonics(hi, edges, (1, 3))
+    if abs(hu[1]) >= _U3_MIN * abs(hu[0]) > 0:
+        r3 = (hy[1] / hu[1]) / (hy[0] / hu[0])
+    else:
+        r3 = complex(math.nan, math.nan)
     c1 = abs(c[1]) + 1e-12
     resid = y[a:b] - np.interp(phase_all, ph, w, period=1.0)
     f = {
         "period": math.log(period), "amplitude": math.log(amp), "offset": mean / amp, "duty": duty,
         "phase1": float(np.angle(c[1])), "h2": float(abs(c[2]) / c1), "h3": float(abs(c[3]) / c1),
+        "r3mag": math.log(abs(r3)) if abs(r3) > 0 else math.nan, "r3arg": float(np.angle(r3)),
     }  # fmt: skip
     f.update(_resid_features(y[a:b], resid, amp))
     f["_wave"] = wn
     f["_cycles"] = nc
     return f
+
+
+def _wrap(a: float | np.ndarray) -> float | np.ndarray:
+    """Angle(s) wrapped to [-pi, pi), rad."""
+    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _smooth(x: np.ndarray, n: int = 5) -> np.ndarray:
@@ -137,11 +169,15 @@ def step_features(spec: RunSpec, t: np.ndarray, y: np.ndarray) -> dict | None:
         return float(tt[i[0]]) if i.size else float(tt[-1] * 2)
 
     rise = max(cross(0.9) - cross(0.1), 1.0 / max(len(tt), 1))
+    # dead time: until the response has moved 5% of the step from where it stood at the step
+    moved = np.flatnonzero(ys - ys[0] >= 0.05)
+    onset = float(tt[moved[0]]) if moved.size else float(tt[-1] * 2)
     dt = float(t[1] - t[0])
     n = ys.size
     tail = slice(int(0.6 * n), n)
     f = {
-        "overshoot": float(ys.max() - 1.0), "rise": math.log(rise), "ise": math.log(max(float(np.sum(e * e) * dt), 1e-12)),
+        "overshoot": float(ys.max() - 1.0), "onset": math.log(max(onset, 1.0 / max(len(tt), 1))),
+        "rise": math.log(rise), "ise": math.log(max(float(np.sum(e * e) * dt), 1e-12)),
         "settled": float(e[int(0.7 * n):].mean()),
     }  # fmt: skip
     yt = y[k0:][tail]
@@ -204,8 +240,10 @@ def compare(meas: Sequence[dict | None], sim: Sequence[dict | None],
                 z[(i, name)] = _dist(fm, fs, name) / s
             else:
                 d = fm[name] - fs[name]
-                if name == "phase1":
-                    d = (d + math.pi) % (2 * math.pi) - math.pi
+                if math.isnan(d):  # R3 undefined on one side: the duty feature carries that difference
+                    continue
+                if name in ANGLES:
+                    d = _wrap(d)
                 z[(i, name)] = d / s
     return z
 
@@ -227,8 +265,13 @@ def noise_scales(sims_by_seed: Sequence[Sequence[dict | None]]) -> list[dict[str
                 if name in DISTANCES:
                     ds = [_dist(a, b, name) for j, a in enumerate(fs) for b in fs[j + 1:]]
                     sc[name] = float(np.mean(ds))
-                else:
-                    sc[name] = float(np.std([f[name] for f in fs], ddof=1))
+                    continue
+                v = [f[name] for f in fs if not math.isnan(f[name])]
+                if len(v) < 2:
+                    continue
+                if name in ANGLES:  # spread around the first angle, across the wrap
+                    v = [_wrap(x - v[0]) for x in v]
+                sc[name] = float(np.std(v, ddof=1))
         out.append(sc)
     return out
 

@@ -60,6 +60,8 @@ NONE_GAP = 1.5
 NAME_RATIO = 0.4
 #: noise seeds for the gap before and after
 SEEDS = 3
+#: candidates whose fitted value is re-simulated with fresh seeds before deciding
+VERIFY = 3
 
 
 @dataclass
@@ -160,8 +162,52 @@ def _session_scales(session: Session, feats: list[dict | None]) -> dict[str, flo
     return {"period": period, "h_min": min(hs), "h_max": max(hs), "amp": amp, "umax": umax}
 
 
-def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int = 8) -> np.ndarray:
-    """Coarse grid of effect ``name``'s parameter for a session with scales ``sc`` (vocabulary units)."""
+def data_hints(session: Session, rate_hz: float) -> dict[str, float]:
+    """Parameters read straight off the measured samples, where the data shows them.
+
+    Quantization and sample-and-hold leave the measurement on a lattice and in
+    runs of repeated values; their gap landscapes are rugged (each step or
+    frame rate gives its own relay orbits), so a coarse grid can miss the
+    basin. The hints join the candidate grids:
+
+    * ``quantization``: the smallest gap between distinct measured values,
+      when at least a fifth of the samples repeat the one before (else no hint);
+    * ``sample_hold``: the control rate over the mean length of runs of equal
+      samples, when that is at least 1.5 samples.
+
+    Returns
+    -------
+    dict name -> value (vocabulary units), for the effects with a hint.
+    """
+    ys = [np.asarray(r.data.y, dtype=np.float64) for r in session.runs]
+    ys = [y[np.isfinite(y)] for y in ys]
+    same = np.concatenate([y[1:] == y[:-1] for y in ys if y.size > 1])
+    hints: dict[str, float] = {}
+    if same.size and same.mean() >= 0.2:
+        levels = np.unique(np.concatenate(ys))
+        d = np.diff(levels)
+        d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(levels))))]
+        if d.size:
+            hints["quantization"] = float(d.min())
+        run_len = 1.0 / max(1.0 - same.mean(), 1e-9)
+        if run_len >= 1.5:
+            hints["sample_hold"] = rate_hz / run_len
+    return hints
+
+
+def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int = 8,
+                   hint: float | None = None) -> np.ndarray:
+    """Coarse grid of effect ``name``'s parameter for a session with scales ``sc`` (vocabulary units).
+
+    ``hint`` (``data_hints``), when given, is added with its neighbours 15% either side.
+    """
+    grid = _base_grid(name, sc, noise_std, rate_hz, n)
+    if hint is None or not math.isfinite(hint) or hint <= 0:
+        return grid
+    return np.unique(np.concatenate([grid, hint * np.array([0.85, 1.0, 1.15])]))
+
+
+def _base_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int) -> np.ndarray:
     P, g = sc["period"], np.geomspace
     if name == "delay":
         return g(0.01 * P, 0.3 * P, n)
@@ -340,7 +386,8 @@ def run_gap(
 
     # 2. coarse grids of every candidate in one batch
     sc = _session_scales(session, ev.meas)
-    grids = {c: candidate_grid(c, sc, float(model.noise_std), rate, coarse) for c in candidates}
+    hints = data_hints(session, rate)
+    grids = {c: candidate_grid(c, sc, float(model.noise_std), rate, coarse, hints.get(c)) for c in candidates}
     cands = [(c, float(v)) for c in candidates for v in grids[c]]
     sims = ev.sims(cands)
     scores = np.array([ev.gap(ev.features(s)) for s in sims])
@@ -379,7 +426,7 @@ def run_gap(
         best[c] = (_refine(vals, gs), float(gs.min()))
 
     # 4. verify the refined value of the top candidates with fresh seeds, decide
-    top_c = sorted(candidates, key=lambda c: best[c][1])[:2]
+    top_c = sorted(candidates, key=lambda c: best[c][1])[:VERIFY]
     ver = ev.sims([(c, best[c][0]) for c in top_c], seeds=SEEDS)
     verified: dict[str, float] = {}
     for j, c in enumerate(top_c):

@@ -58,6 +58,34 @@ def switch_indices(u: np.ndarray) -> np.ndarray:
     return np.flatnonzero(s[1:] != s[:-1]) + 1
 
 
+def cycle_harmonics(x: np.ndarray, edges: np.ndarray, orders: tuple[int, ...] = (1,)) -> np.ndarray:
+    """Harmonics of a signal over whole relay cycles, each cycle on its own period.
+
+    For the cycle between ``edges[i]`` and ``edges[i + 1]`` (``N`` samples) the
+    ``k``-th harmonic is ``sum_n x[n] exp(-2 pi j k n / N) / N``; the result is
+    the mean over cycles. Taken on the samples themselves, the ratio of two
+    signals' harmonics is exactly the sampled system's frequency response at
+    the cycle's frequency for a periodic cycle (a relay's held command and the
+    output sampled with it).
+
+    Parameters
+    ----------
+    x : (T,) signal
+    edges : (m,) int, increasing sample indices delimiting ``m - 1`` cycles (m >= 2)
+    orders : harmonic orders
+
+    Returns
+    -------
+    (len(orders),) complex
+    """
+    x = np.asarray(x, dtype=np.float64)
+    acc = np.zeros(len(orders), dtype=complex)
+    for i, j in zip(edges[:-1], edges[1:], strict=True):
+        n = j - i
+        acc += np.exp(-2j * np.pi * np.outer(orders, np.arange(n)) / n) @ x[i:j] / n
+    return acc / (len(edges) - 1)
+
+
 def _settle_index(t: np.ndarray, settle: float | None) -> int:
     if settle is None:
         settle = 0.3 * (t[-1] - t[0])
