@@ -245,7 +245,8 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
 
     Returns
     -------
-    dict with ``ids`` (m,), ``X`` (m, C, L) float32, ``period``, ``amplitude`` (m,),
+    dict with ``ids`` (m,), ``X`` (m, C, L) float32, ``period``, ``amplitude``, ``response``
+    (complex), ``response_period`` (m,) (``preprocess.CycleFeatures``),
     ``ok``, ``diverged`` (m,) bool, ``duration_s`` scalar, and ``y``, ``u`` (m, T)
     float32 when the recipe keeps raw traces.
     """
@@ -256,12 +257,13 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
                    nthread=nthread, y0=plan.y0[ids])
     ctrl = NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], r.episodes.rate_hz, m, bias=plan.bias[ids])
     res = lb.run(ctrl, duration_s)
+    resp: dict[str, np.ndarray] = {}
     X, period, amp, ok = preprocess.features_batch(
         np.nan_to_num(res.y), res.u, r.episodes.rate_hz, np.full(m, r.test.h), plan.bias[ids], plan.L,
-        cycles=r.preprocess.cycles)
+        cycles=r.preprocess.cycles, response=resp)
     ok &= ~res.diverged
     out = {"ids": np.asarray(ids, dtype=np.int64), "X": X, "period": period, "amplitude": amp, "ok": ok,
-           "diverged": res.diverged.copy(), "duration_s": np.float64(duration_s)}
+           "diverged": res.diverged.copy(), "duration_s": np.float64(duration_s), **resp}
     if r.preprocess.keep_raw:
         out["y"] = res.y.astype(np.float32)
         out["u"] = res.u.astype(np.float32)
@@ -476,6 +478,7 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path) -> dict[str, Any]
     C, L = len(preprocess.CHANNELS), plan.L
     X = np.zeros((n, C, L), dtype=np.float32)
     period, amp = np.full(n, np.nan), np.full(n, np.nan)
+    resp, resp_period = np.full(n, complex("nan")), np.full(n, np.nan)
     ok, div = np.zeros(n, bool), np.zeros(n, bool)
     seed_of = np.zeros(n, dtype=np.uint32)
     keep_raw = r.preprocess.keep_raw
@@ -487,6 +490,8 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path) -> dict[str, Any]
         ids = res["ids"]
         X[ids], period[ids], amp[ids], ok[ids], div[ids] = res["X"], res["period"], res["amplitude"], res["ok"], \
             res["diverged"]
+        if "response" in res:  # chunks saved by an older version for resume lack it
+            resp[ids], resp_period[ids] = res["response"], res["response_period"]
         seed_of[ids] = plan.sim_seeds[i]
         if keep_raw:
             T = res["y"].shape[1]
@@ -506,7 +511,8 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path) -> dict[str, Any]
     episodes = {"inputs": X[keep], "labels": plan.labels[keep], "K": plan.K[keep], "bias": plan.bias[keep],
                 "noise_kind": plan.noise_kind[keep], "noise_level": plan.noise_level[keep], "period": period[keep],
                 "amplitude": amp[keep], "y0": plan.y0[keep], "tau_obs": plan.tau_obs[keep], "a_n": plan.a_n[keep],
-                "episode": keep, "sim_seed": seed_of[keep]}
+                "episode": keep, "sim_seed": seed_of[keep], "response_re": resp[keep].real,
+                "response_im": resp[keep].imag, "response_period": resp_period[keep]}
     n_div = int(div[:nt].sum())
     attrs = {"loop": fam, "grid_hash": g.hash or "", "grid_version": int(g.version), "beta": plan.beta,
              "h": r.test.h, "tau_obs": r.test.tau_obs, "a_n": r.test.a_n, "rate_hz": r.episodes.rate_hz,
@@ -646,7 +652,8 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     -------
     X : (n, C, L) float32, period : (n,) s, amplitude : (n,) output units, ok : (n,) bool,
     meta : dict of per-episode draws (``K, bias, noise_kind, noise_level, y0, tau_obs, a_n``,
-    (n,) arrays), ``noise_kinds``, ``diverged`` (n,), ``seed``, ``duration_s``.
+    (n,) arrays), ``noise_kinds``, ``diverged`` (n,), ``seed``, ``duration_s``, ``response``
+    (n,) complex and ``response_period`` (n,) s (the fundamental response, ``preprocess.CycleFeatures``).
     """
     if not params:
         raise UserError("simulate_features needs at least one process")
@@ -678,6 +685,7 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     res = run_episodes(list(params), plan, ids, duration, int(plan.sim_seeds[0]))
     meta = {"K": K, "bias": bias, "noise_kind": kind, "noise_kinds": list(recipe.noise.kinds), "noise_level": level,
             "y0": y0, "tau_obs": tau_obs, "a_n": plan.a_n, "diverged": res["diverged"], "seed": seed,
-            "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params}
+            "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
+            "response": res["response"], "response_period": res["response_period"]}
     return res["X"], res["period"], res["amplitude"], res["ok"], meta
 

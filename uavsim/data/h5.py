@@ -10,7 +10,9 @@ labels and everything needed to interpret or regenerate them (README,
   ``noise_level`` (N,) float32 (noise amplitude / a0), ``period`` (N,) s and
   ``amplitude`` (N,) output units as measured by the preprocessing, and the rest
   of each episode's draws: ``y0``, ``tau_obs``, ``a_n``, ``episode`` (index in
-  the recipe's plan), ``sim_seed`` (seed of the batch that simulated it), and
+  the recipe's plan), ``sim_seed`` (seed of the batch that simulated it),
+  ``response_re``, ``response_im`` (N,) the fundamental response ``Y1 / (h U1)``
+  and ``response_period`` (N,) s its cycle (``uavsim.data.preprocess``), and
   ``effects/<i>_<name>/<param>`` for randomized effect parameters;
 * group ``classes``: the class table, ``T_prop, T1, tau`` (``T2, tau`` for
   lateral), ``kp, kd, derivative_filter_hz, omega, amplitude, period``
@@ -53,6 +55,8 @@ EPISODE_FIELDS = {
     "period": np.float64, "amplitude": np.float64, "y0": np.float64, "tau_obs": np.float64, "a_n": np.float64,
     "episode": np.int64, "sim_seed": np.uint32,
 }
+#: per-episode datasets that older files may lack (read when present)
+OPTIONAL_EPISODE_FIELDS = {"response_re": np.float64, "response_im": np.float64, "response_period": np.float64}
 CLASS_FIELDS = ("kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")
 CLASS_PARAMS = {"altitude": ("T_prop", "T1", "tau"), "attitude": ("T_prop", "T1", "tau"), "lateral": ("T2", "tau")}
 REQUIRED_ATTRS = ("format", "loop", "grid_hash", "grid_version", "beta", "h", "tau_obs", "a_n", "rate_hz",
@@ -100,6 +104,12 @@ def write_dataset(path: str | Path, episodes: dict[str, np.ndarray], classes: di
             if a.shape != (N,):
                 raise ValueError(f"episode field {name} has shape {a.shape}, expected ({N},)")
             f.create_dataset(name, data=a, **kw)
+        for name, dt in OPTIONAL_EPISODE_FIELDS.items():
+            if name in episodes:
+                a = np.asarray(episodes[name], dtype=dt)
+                if a.shape != (N,):
+                    raise ValueError(f"episode field {name} has shape {a.shape}, expected ({N},)")
+                f.create_dataset(name, data=a, **kw)
         g = f.create_group("classes", track_order=True)
         for k, v in classes.items():
             g.create_dataset(k, data=np.asarray(v, dtype=np.float64), **kw)
@@ -223,6 +233,11 @@ def open_dataset(path: str | Path) -> Dataset:
                 if d.shape != (N,):
                     raise _bad(path, f"dataset {name} has shape {d.shape}, expected ({N},)")
                 fields[name] = d[()].astype(dt, copy=False)
+            for name, dt in OPTIONAL_EPISODE_FIELDS.items():
+                if name in f:
+                    if f[name].shape != (N,):
+                        raise _bad(path, f"dataset {name} has shape {f[name].shape}, expected ({N},)")
+                    fields[name] = f[name][()].astype(dt, copy=False)
             g = f["classes"]
             table = {}
             for k in (*CLASS_PARAMS[loop], *CLASS_FIELDS):

@@ -15,8 +15,13 @@ saw and computed them, bias included):
 4. Right-align both channels in a zero-padded ``(C, L)`` float32 array.
 
 The period (mean over the cycles used) and the amplitude (half peak-to-peak of
-``y``) are returned alongside: the input is shape only, the amplitude gives the
-gain back, ``K_hat = (amplitude / h) / grid.amplitude[class]``.
+``y``) are returned alongside, and the loop's **fundamental response**: the
+ratio of the first harmonics of ``y`` and of the command, ``Y1 / (h U1)``, over
+the last ``RESPONSE_CYCLES`` steady cycles. For a linear process that ratio is
+its frequency response ``G(j w)`` at the cycle's frequency ``w`` whatever the
+relay did (bias, ``tau_obs``, ``a_n``, sampling), and zero-mean noise averages
+out of it; the input is shape only, and the gain comes back from the response
+and the identified class's own ``|G(j w)|`` (``uavsim.learning.identify``).
 
 Departures from the authors' scheme (NOTES.md section 2), and why:
 
@@ -47,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.noise.analysis import cycle_harmonics
 
 INPUT_RATE_HZ = 200.0  # inputs are built from control-rate samples
 #: channel names of an input, in order
@@ -57,6 +63,8 @@ _MIN_DUTY, _MAX_DUTY = 0.05, 0.95
 _STEADY_TOL = 0.25
 #: shortest usable cycle, samples at INPUT_RATE_HZ: fewer than 4 samples a half-cycle is chattering, not a shape
 MIN_CYCLE_SAMPLES = 8
+#: most cycles the fundamental response is averaged over (the last ones, the first is never used)
+RESPONSE_CYCLES = 4
 
 
 class NoOscillation(UserError):
@@ -79,6 +87,12 @@ class CycleFeatures:
         Cycles used.
     start, stop : int
         Sample indices (of the given ``y``, ``u``) of the segment used, ``[start, stop)``.
+    response : complex
+        ``Y1 / (h U1)``: first harmonic of ``y`` over that of the command, output units per
+        command unit, over the last ``response_cycles`` cycles (see module docstring).
+    response_period : float
+        Mean period of those cycles, s (the frequency of ``response`` is ``2 pi / response_period``).
+    response_cycles : int
     """
 
     x: np.ndarray
@@ -87,6 +101,9 @@ class CycleFeatures:
     n_cycles: int
     start: int
     stop: int
+    response: complex = complex("nan")
+    response_period: float = float("nan")
+    response_cycles: int = 0
 
 
 def input_length(grid, margin: float = LENGTH_MARGIN) -> int:
@@ -193,12 +210,22 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     x[0, L - n:] = (seg_y - 0.5 * (hi + lo)) / amp
     x[1, L - n:] = seg_u
     period = precise_period if precise_period is not None else n / cycles / INPUT_RATE_HZ
+    # the fundamental response over the last steady cycles (never the first, transient one)
+    m = min(RESPONSE_CYCLES, len(edges) - 2)
+    lens = np.diff(edges[-1 - m:])
+    while m > cycles and abs(lens[0] - lens[-1]) > _STEADY_TOL * max(lens[0], lens[-1]):
+        m -= 1
+        lens = lens[1:]
+    re = edges[-1 - m:]
+    yh, uh = cycle_harmonics(y, re)[0], cycle_harmonics(s, re)[0]
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
-                         start=int(round(start * scale)), stop=int(round(stop * scale)))
+                         start=int(round(start * scale)), stop=int(round(stop * scale)),
+                         response=complex(yh / (h * uh)), response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
+                         response_cycles=int(m))
 
 
 def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, bias: np.ndarray, L: int, *,
-                   cycles: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   cycles: int = 1, response: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``features`` on each row; rows without a usable oscillation get ``ok = False``.
 
     Parameters
@@ -208,6 +235,9 @@ def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, 
     h, bias : (n,) or scalars
     L : int
     cycles : int
+    response : dict, optional
+        When given, filled with ``response`` (n,) complex and ``response_period`` (n,) s
+        (``CycleFeatures``; NaN where not ok).
 
     Returns
     -------
@@ -225,10 +255,15 @@ def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, 
     period = np.full(n, np.nan)
     amplitude = np.full(n, np.nan)
     ok = np.zeros(n, dtype=bool)
+    resp = np.full(n, complex("nan"))
+    resp_period = np.full(n, np.nan)
     for i in range(n):
         try:
             f = features(Y[i], U[i], rate_hz, float(h[i]), float(bias[i]), L, cycles=cycles)
         except NoOscillation:
             continue
         X[i], period[i], amplitude[i], ok[i] = f.x, f.period, f.amplitude, True
+        resp[i], resp_period[i] = f.response, f.response_period
+    if response is not None:
+        response.update(response=resp, response_period=resp_period)
     return X, period, amplitude, ok

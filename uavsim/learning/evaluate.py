@@ -38,7 +38,8 @@ from uavsim.learning.export import Predictor
 from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
 
-__all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "closed_loop_deterioration",
+__all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "amplitude_gain",
+           "closed_loop_deterioration",
            "evaluate_offgrid", "summarize_deterioration"]
 
 
@@ -90,19 +91,22 @@ def random_processes(loop: str, n: int, seed: int, K: tuple[float, float] = (0.5
             for i in range(n)]
 
 
-def pipeline_gains(cls: np.ndarray, amplitude: np.ndarray, h: float | np.ndarray, table: dict[str, Any],
-                   corr: np.ndarray | float = 1.0) -> dict[str, np.ndarray]:
-    """Gains identification picks: class gains (K = 1) over ``K_hat = (a / h) / (a_class corr)``.
+def pipeline_gains(cls: np.ndarray, K_hat: np.ndarray, table: dict[str, Any]) -> dict[str, np.ndarray]:
+    """Gains identification picks: the class's rule gains (K = 1) over ``K_hat``.
 
-    ``corr`` is the network's amplitude correction (``Predictor.predict_full``), (m,) or 1.
     Returns ``K_hat``, ``kp``, ``kd``, ``N`` (rad/s), each (m,).
     """
     cls = np.asarray(cls, dtype=np.int64)
-    a_cls = np.asarray(table["amplitude"], float)[cls] * np.asarray(corr, float)
-    K_hat = (np.asarray(amplitude, float) / np.asarray(h, float)) / a_cls
+    K_hat = np.asarray(K_hat, dtype=np.float64)
     return {"K_hat": K_hat, "kp": np.asarray(table["kp"], float)[cls] / K_hat,
             "kd": np.asarray(table["kd"], float)[cls] / K_hat,
             "N": 2 * np.pi * np.asarray(table["derivative_filter_hz"], float)[cls]}
+
+
+def amplitude_gain(cls: np.ndarray, amplitude: np.ndarray, h: float | np.ndarray, table: dict[str, Any]) -> np.ndarray:
+    """The authors' gain recovery, ``K_hat = (a / h) / a_class`` (continuous plain-MRFT class amplitude), (m,)."""
+    a_cls = np.asarray(table["amplitude"], float)[np.asarray(cls, dtype=np.int64)]
+    return (np.asarray(amplitude, float) / np.asarray(h, float)) / a_cls
 
 
 def closed_loop_deterioration(params: list[LumpedParams], kp: np.ndarray, kd: np.ndarray, N: np.ndarray,
@@ -137,6 +141,14 @@ def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
             "max": float(np.max(det)), "unstable": int(np.sum(~np.isfinite(det)))}
 
 
+def _rel_err(K_hat: np.ndarray, K: np.ndarray) -> dict[str, float]:
+    """Median and p95 of ``|K_hat / K - 1|`` (empty without data)."""
+    if not len(K):
+        return {}
+    e = np.abs(np.asarray(K_hat) / np.asarray(K) - 1.0)
+    return {"median": float(np.median(e)), "p95": float(np.percentile(e, 95))}
+
+
 def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLike, n: int = 300, seed: int = 11,
                      K: tuple[float, float] = (0.5, 2.0), chunk: int = 100, progress: bool = False) -> dict[str, Any]:
     """Off-grid random processes through MuJoCo and the whole identification pipeline.
@@ -153,10 +165,12 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     ``deterioration`` (``summarize_deterioration``), ``J`` (normalized J of the predicted class:
     mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|), ``by_noise`` (median
     deterioration per noise level band), ``baseline_nearest_period`` (deterioration when the
-    class is the one of nearest exact period and no amplitude correction), ``wall_s``.
+    class is the one of nearest exact period), ``amplitude_gain_recovery`` (deterioration and
+    K error with the network's classes but ``K_hat`` from the amplitude), ``wall_s``.
     """
     from uavsim.data.generate import simulate_features
     from uavsim.data.recipe import load_recipe
+    from uavsim.learning.identify import recover_gain
     from uavsim.tuning.grid import load_grid
     from uavsim.tuning.jmatrix import deterioration
 
@@ -169,7 +183,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         raise UserError(f"{model_dir}: trained on another {meta['loop']} grid than the current one")
     table = meta["classes"]
     params = random_processes(meta["loop"], n, seed, K)
-    Xs, amps, oks, levels, pers = [], [], [], [], []
+    Xs, amps, oks, levels, pers, resps, rpers = [], [], [], [], [], [], []
     for i in range(0, n, chunk):
         X, per, amp, ok, m = simulate_features(params[i : i + chunk], recipe, seed + 1 + i // chunk)
         Xs.append(X)
@@ -177,16 +191,22 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         amps.append(amp)
         oks.append(ok)
         levels.append(m["noise_level"])
+        resps.append(m["response"])
+        rpers.append(m["response_period"])
         if progress:
             print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    X, amp, ok, level, period = (np.concatenate(v) for v in (Xs, amps, oks, levels, pers))
+    X, amp, ok, level, period, resp, rper = (np.concatenate(v) for v in (Xs, amps, oks, levels, pers, resps, rpers))
     idx = np.flatnonzero(ok)
-    cls, _, corr = pred.predict_full(X[idx])
+    cls, _ = pred.predict(X[idx])
     h = recipe.test.h
-    g = pipeline_gains(cls, amp[idx], h, table, corr)
+    fam = meta["loop"]
+    g = pipeline_gains(cls, recover_gain(resp[idx], rper[idx], cls, table, fam), table)
     used = [params[i] for i in idx]
     cl = closed_loop_deterioration(used, g["kp"], g["kd"], g["N"], grid.beta, grid.pm_deg)
     K_true = np.array([p.K for p in used])
+    # same run, the authors' gain recovery from the amplitude (what the response replaces)
+    ga = pipeline_gains(cls, amplitude_gain(cls, amp[idx], h, table), table)
+    det_amp = closed_loop_deterioration(used, ga["kp"], ga["kd"], ga["N"], grid.beta, grid.pm_deg)["deterioration"]
     # normalized J of the predicted class's controller on the true process (no gain error)
     gi = np.asarray(table.get("grid_index", np.arange(len(table["kp"]))), dtype=np.int64)
     pa = {k: np.array([getattr(p, k) for p in used]) for k in ("T_prop", "T1", "tau")}
@@ -198,7 +218,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     det = cl["deterioration"]
     # same-run baseline: the class of nearest exact period, no correction (what a network must beat)
     near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
-    gb = pipeline_gains(near, amp[idx], h, table)
+    gb = pipeline_gains(near, recover_gain(resp[idx], rper[idx], near, table, fam), table)
     det_base = closed_loop_deterioration(used, gb["kp"], gb["kd"], gb["N"], grid.beta, grid.pm_deg)["deterioration"]
     bands = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.15), (0.15, 0.2001)]
     by_noise = {}
@@ -211,9 +231,11 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         "noise_level_max": float(np.max(level)) if level.size else 0.0,
         "deterioration": summarize_deterioration(det),
         "baseline_nearest_period": summarize_deterioration(det_base),
+        "amplitude_gain_recovery": {
+            "deterioration": summarize_deterioration(det_amp),
+            "K_rel_err": _rel_err(ga["K_hat"], K_true)},
         "J": {"mean": float(np.mean(jsel)), "p95": float(np.percentile(jsel, 95))} if jsel.size else {},
-        "K_rel_err": {"median": float(np.median(np.abs(g["K_hat"] / K_true - 1))),
-                      "p95": float(np.percentile(np.abs(g["K_hat"] / K_true - 1), 95))} if idx.size else {},
+        "K_rel_err": _rel_err(g["K_hat"], K_true),
         "by_noise": by_noise,
         "wall_s": time.perf_counter() - t0,
     }

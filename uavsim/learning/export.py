@@ -128,23 +128,7 @@ class Predictor:
         with torch.inference_mode():
             return self.module(torch.from_numpy(np.ascontiguousarray(x))).numpy()
 
-    @property
-    def gain_head(self) -> bool:
-        return bool(self.meta.get("net", {}).get("gain_head", False))
-
     def predict(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted classes (B,) int64 (argmax of the class activations) and those activations (B, n)."""
-        c, a, _ = self.predict_full(x)
-        return c, a
-
-    def predict_full(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Classes (B,), class activations (B, n) and the amplitude correction (B,).
-
-        The correction is ``exp`` of the gain head (the measured amplitude over
-        ``K h a_class``); 1 without a gain head.
-        """
-        out = self.activations(x)
-        n = self.n_classes
-        a = out[:, :n]
-        corr = np.exp(out[:, n].astype(np.float64)) if self.gain_head else np.ones(out.shape[0])
-        return a.argmax(axis=1).astype(np.int64), a, corr
+        a = self.activations(x)
+        return a.argmax(axis=1).astype(np.int64), a

@@ -7,11 +7,15 @@ From a session (``uavsim-session/1``) with an ``np-mrft`` (or ``mrft``) run:
    same normalization, same input length);
 2. predict the class with the exported network of the loop's family
    (``uavsim.learning.export.Predictor``);
-3. recover the gain from the amplitude: the class's exact MRFT amplitude is for
-   K = 1 and h = 1 and the loop is linear, so ``K_hat = (a / h) / (a_class c)``,
-   where ``c`` is the network's amplitude correction (gain head, 1 without one:
-   NP-MRFT's observation delay, relay bias and noise change the amplitude by
-   tens of percent, measured on the training sets);
+3. recover the gain from the loop's fundamental response: the ratio ``Y1 / (h U1)``
+   of the first harmonics of y and of the command over the last steady cycles
+   (``CycleFeatures.response``) is the process's ``K G_n(j w)`` at the cycle's
+   frequency ``w``, whatever the relay's bias, ``tau_obs``, ``a_n`` and the
+   sampling did to the cycle, so ``K_hat = |response| / |G_class(j w)|`` with
+   the identified class's unit-gain model (``recover_gain``). (The authors'
+   ``K_hat = (a / h) / a_class``, from the plain continuous MRFT's amplitude,
+   is biased by tens of percent by exactly those; ``uavsim.learning.evaluate``
+   reports both.)
 4. scale the class's rule gains (for K = 1) to the real process:
    ``kp = kp_class / K_hat``, ``kd = kd_class / K_hat``.
 
@@ -39,7 +43,7 @@ from uavsim.errors import UserError
 from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
-           "SATURATION_FRACTION"]
+           "recover_gain", "class_gain_at", "SATURATION_FRACTION"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -75,6 +79,60 @@ def _predictor(d: Path) -> Predictor:
     if key not in _predictors:
         _predictors[key] = Predictor(d)
     return _predictors[key]
+
+
+def class_gain_at(table: dict[str, Any], cls: np.ndarray, family: str, omega: np.ndarray,
+                  rate_hz: float) -> np.ndarray:
+    """``|G(j w)|`` of unit-gain class models as a controller at ``rate_hz`` samples them.
+
+    The command is held between samples, which scales the fundamental the
+    output sees by ``sinc(w Ts / 2)`` against the command's samples.
+
+    Parameters
+    ----------
+    table : class table (``T_prop``, ``T1``, ``tau`` columns, (n_classes,))
+    cls : (m,) int, classes
+    family : ``"altitude"`` or ``"attitude"``
+    omega : (m,) rad/s, frequency of each
+    rate_hz : float, rate of the samples the response was measured on
+
+    Returns
+    -------
+    (m,) output units per command unit
+    """
+    from uavsim.lumped.frequency import freq_response_batch
+
+    if family not in ("altitude", "attitude"):
+        raise UserError(f"gain recovery from the response needs an inner-loop class table, not {family!r}")
+    cls = np.asarray(cls, dtype=np.int64)
+    w = np.asarray(omega, dtype=np.float64).reshape(-1, 1)
+    par = {k: np.asarray(table[k], dtype=np.float64)[cls] for k in ("T_prop", "T1", "tau")}
+    g = np.abs(freq_response_batch(family, w, K=1.0, **par))[:, 0]
+    x = w[:, 0] / (2.0 * rate_hz)
+    return g * np.sinc(x / np.pi)
+
+
+def recover_gain(response: np.ndarray, response_period: np.ndarray, cls: np.ndarray, table: dict[str, Any],
+                 family: str, rate_hz: float | None = None) -> np.ndarray:
+    """``K_hat = |response| / |G_class(j w)|``, ``w = 2 pi / response_period`` (see module docstring).
+
+    Parameters
+    ----------
+    response : (m,) complex, ``CycleFeatures.response`` (output units per command unit)
+    response_period : (m,) s
+    cls : (m,) int, identified classes
+    table : class table
+    family : ``"altitude"`` or ``"attitude"``
+    rate_hz : rate of the samples the response was measured on (default ``INPUT_RATE_HZ``)
+
+    Returns
+    -------
+    (m,) K_hat
+    """
+    from uavsim.data.preprocess import INPUT_RATE_HZ
+
+    w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
+    return np.abs(np.asarray(response)) / class_gain_at(table, cls, family, w, rate_hz or INPUT_RATE_HZ)
 
 
 def _check_not_saturated(y: np.ndarray) -> None:
@@ -119,15 +177,12 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     seg = np.asarray(y, dtype=np.float64)[f.start : f.stop]
     if seg.size >= 4:
         _check_not_saturated(seg)
-    cls_arr, act, corr = predictor.predict_full(f.x)
+    cls_arr, act = predictor.predict(f.x)
     c = int(cls_arr[0])
     tab = meta["classes"]
-    # the class amplitude is the exact plain-MRFT cycle for K = 1, h = 1; the network's
-    # correction accounts for what NP-MRFT (tau_obs, a_n), relay bias and noise do to it
-    a_class = float(tab["amplitude"][c]) * float(corr[0])
-    K_hat = (f.amplitude / h) / a_class
+    K_hat = float(recover_gain(np.array([f.response]), np.array([f.response_period]), cls_arr, tab, meta["loop"])[0])
     if not (math.isfinite(K_hat) and K_hat > 0):
-        raise UserError(f"cannot recover the gain: amplitude {f.amplitude} with h={h}")
+        raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
     params = {"K": K_hat}
     for k in ("T_prop", "T1", "T2", "tau"):
         if k in tab:
@@ -145,7 +200,8 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
         "oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
                         "start": f.start, "stop": f.stop},
         "softmax_top": float(p[c]),
-        "amplitude_correction": float(corr[0]),
+        "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
+                     "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
     }
 
 

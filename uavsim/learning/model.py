@@ -9,7 +9,7 @@ applied only in training, and the predicted class is ``argmax a``.
 
     from uavsim.learning.model import NetConfig, IdentNet
     net = IdentNet(NetConfig(channels=2, input_length=400, n_classes=208))
-    a = net(torch.zeros(8, 2, 400))        # (8, 208); (8, 209) with gain_head=True
+    a = net(torch.zeros(8, 2, 400))        # (8, 208)
 """
 
 from __future__ import annotations
@@ -39,12 +39,6 @@ class NetConfig:
         Hidden layer widths (paper: 3000, 1000).
     dropout : float
         Dropout probability after each hidden layer (authors' code: 0.4).
-    gain_head : bool
-        Add one output: the log ratio of the measured cycle amplitude to the
-        class's exact MRFT amplitude times K h (see ``uavsim.learning.train``).
-        Not in the paper: NP-MRFT's observation delay, relay bias and noise make
-        that ratio differ from 1 by tens of percent, which the gain recovery
-        ``K = (a / h) / a_class`` would otherwise carry into the gains.
     period_features : int
         Number of radial-basis features of the log cycle length appended to
         the flattened input (0: none, the paper's network). The cycle length
@@ -62,7 +56,6 @@ class NetConfig:
     n_classes: int
     hidden: list[int] = field(default_factory=lambda: [3000, 1000])
     dropout: float = 0.4
-    gain_head: bool = False
     period_features: int = 0
     period_range_s: tuple[float, float] = (0.05, 3.0)
 
@@ -71,11 +64,7 @@ class NetConfig:
 
 
 class IdentNet(nn.Module):
-    """Fully connected classifier, input (B, C, L) float32 -> activations (B, n_classes [+ 1]).
-
-    With ``gain_head`` the last column is the predicted log amplitude ratio, the
-    first ``n_classes`` the class activations.
-    """
+    """Fully connected classifier, input (B, C, L) float32 -> class activations (B, n_classes)."""
 
     def __init__(self, cfg: NetConfig):
         super().__init__()
@@ -86,7 +75,7 @@ class IdentNet(nn.Module):
             # ReLU before BatchNorm, as in the authors' MATLAB layer stack
             layers += [nn.Linear(width, h), nn.ReLU(), nn.BatchNorm1d(h), nn.Dropout(cfg.dropout)]
             width = h
-        layers.append(nn.Linear(width, cfg.n_classes + (1 if cfg.gain_head else 0)))
+        layers.append(nn.Linear(width, cfg.n_classes))
         self.layers = nn.Sequential(*layers)
         k = max(cfg.period_features, 1)
         lo, hi = (math.log(p * 200.0) for p in cfg.period_range_s)

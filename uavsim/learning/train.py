@@ -53,7 +53,6 @@ __all__ = [
     "load_training_data",
     "class_metrics",
     "gain_metrics",
-    "log_amplitude_ratio",
     "train",
     "train_from_recipe",
 ]
@@ -93,10 +92,6 @@ class TrainRecipe:
     dropout : float
     period_features : int
         Radial-basis features of the cycle length appended to the input (``NetConfig``; 0: the paper's net).
-    gain_head : bool
-        Also learn the amplitude correction for the gain recovery (``NetConfig.gain_head``).
-    gain_weight : float
-        Weight of the gain head's squared error (log amplitude ratio) in the loss.
     lr : float
         Adam learning rate.
     lr_decay : float
@@ -129,9 +124,7 @@ class TrainRecipe:
     threads: int = 0
     hidden: list[int] = field(default_factory=lambda: [3000, 1000])
     dropout: float = 0.4
-    gain_head: bool = False
     period_features: int = 0
-    gain_weight: float = 1.0
     lr: float = 0.01
     lr_decay: float = 0.7
     lr_step_epochs: int = 20
@@ -154,8 +147,8 @@ class TrainRecipe:
 
 _SECTIONS = {
     "": ("format", "name", "loop", "dataset", "out", "test_dataset", "attitude_classes", "seed", "device", "threads"),
-    "net": ("hidden", "dropout", "gain_head", "period_features"),
-    "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay", "gain_weight"),
+    "net": ("hidden", "dropout", "period_features"),
+    "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay"),
     "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
 }
 
@@ -217,8 +210,8 @@ def _check_recipe(r: TrainRecipe) -> None:
         ("batch_size", r.batch_size >= 2), ("epochs", r.epochs >= 1), ("dropout", 0 <= r.dropout < 1),
         ("val_fraction", 0 < r.val_fraction < 1), ("patience", r.patience >= 1), ("max_minutes", r.max_minutes >= 0),
         ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
-        ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0), ("gain_weight", r.gain_weight >= 0),
-        ("gain_head", isinstance(r.gain_head, bool)), ("period_features", r.period_features >= 0),
+        ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0),
+        ("period_features", r.period_features >= 0),
     ]
     for name, ok in checks:
         if not ok:
@@ -241,8 +234,9 @@ class TrainData:
     J : (n, n) float64 relative sensitivity (rows predicted, columns true)
     attrs : dict of the file's attributes (loop, grid_hash, beta, rate_hz, ...)
     classes : dict name -> (n,) array (class table: time parameters, gains, amplitude, ...)
-    amplitude : (N,) measured cycle amplitudes (output units) or None
     K : (N,) true gains or None
+    response : (N,) complex fundamental response (``uavsim.data.preprocess``) or None
+    response_period : (N,) s or None
     """
 
     X: np.ndarray
@@ -250,8 +244,9 @@ class TrainData:
     J: np.ndarray
     attrs: dict[str, Any]
     classes: dict[str, np.ndarray]
-    amplitude: np.ndarray | None = None
     K: np.ndarray | None = None
+    response: np.ndarray | None = None
+    response_period: np.ndarray | None = None
 
     @property
     def n_classes(self) -> int:
@@ -269,51 +264,26 @@ def _attr(v: Any) -> Any:
 
 
 def load_training_data(path: str | os.PathLike) -> TrainData:
-    """Read a ``uavsim-dataset/1`` file through ``uavsim.data.h5.open_dataset`` (validated).
+    """Read a ``uavsim-dataset/1`` file through ``uavsim.data.h5.open_dataset`` (validated)."""
+    from uavsim.data.h5 import open_dataset
 
-    Falls back to a minimal reader of the same layout when ``uavsim.data.h5`` is
-    not installed (the dataset module ships separately).
-    """
     p = Path(path)
     if not p.is_file():
         raise UserError(f"dataset {p} not found (run `uavsim generate` / `make generate-data` first)")
-    try:
-        from uavsim.data.h5 import open_dataset
-    except ImportError:
-        open_dataset = None
-    if open_dataset is not None:
-        ds = open_dataset(p)
-        attrs = {k: _attr(v) for k, v in dict(ds.attrs).items()}
-        classes = {k: np.asarray(v) for k, v in dict(ds.class_table).items()}
-        X = np.asarray(ds.inputs, dtype=np.float32)
-        labels = np.asarray(ds.labels).astype(np.int64)
-        J = np.asarray(ds.J, dtype=np.float64)
-        amp = np.asarray(ds.amplitude, dtype=np.float64) if getattr(ds, "amplitude", None) is not None else None
-        K = np.asarray(ds.K, dtype=np.float64) if getattr(ds, "K", None) is not None else None
-        close = getattr(ds, "close", None)
-        if callable(close):
-            close()
-    else:  # pragma: no cover - exercised only without uavsim.data.h5
-        import h5py
-
-        with h5py.File(p, "r") as f:
-            if _attr(f.attrs.get("format")) != "uavsim-dataset/1":
-                raise UserError(f"{p}: not a uavsim-dataset/1 file")
-            attrs = {k: _attr(v) for k, v in f.attrs.items()}
-            X = f["inputs"][...].astype(np.float32)
-            labels = f["labels"][...].astype(np.int64)
-            J = f["J"][...].astype(np.float64)
-            classes = {k: f["classes"][k][...] for k in f["classes"]}
-            amp = f["amplitude"][...] if "amplitude" in f else None
-            K = f["K"][...] if "K" in f else None
+    ds = open_dataset(p)
+    attrs = {k: _attr(v) for k, v in dict(ds.attrs).items()}
+    classes = {k: np.asarray(v) for k, v in dict(ds.class_table).items()}
+    X = np.asarray(ds.inputs, dtype=np.float32)
+    labels = np.asarray(ds.labels).astype(np.int64)
+    J = np.asarray(ds.J, dtype=np.float64)
+    response = response_period = None
+    if "response_re" in ds.fields:  # sets written before the response was recorded lack it
+        response = ds.response_re + 1j * ds.response_im
+        response_period = np.asarray(ds.response_period, dtype=np.float64)
     n = J.shape[0]
     if X.ndim != 3 or labels.shape != (X.shape[0],) or J.shape != (n, n):
         raise UserError(f"{p}: inconsistent shapes inputs {X.shape}, labels {labels.shape}, J {J.shape}")
-    if labels.size and (labels.min() < 0 or labels.max() >= n):
-        raise UserError(f"{p}: labels outside 0..{n - 1}")
-    if not np.all(np.isfinite(X)):
-        raise UserError(f"{p}: non-finite inputs")
-    return TrainData(X, labels, J, attrs, classes, amp, K)
+    return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period)
 
 
 def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str, float]:
@@ -338,28 +308,20 @@ def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str
     }
 
 
-def log_amplitude_ratio(data: TrainData) -> np.ndarray | None:
-    """Gain-head targets ``log(a / (K h a_class[label]))`` (N,), or None when the set lacks K or amplitude."""
-    if data.K is None or data.amplitude is None or "amplitude" not in data.classes:
-        return None
-    h = float(data.attrs.get("h", 1.0))
-    a_cls = np.asarray(data.classes["amplitude"], float)[data.labels]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.log(np.asarray(data.amplitude, float) / (np.asarray(data.K, float) * h * a_cls))
-    return r if np.all(np.isfinite(r)) else None
+def gain_metrics(pred: np.ndarray, data: TrainData, idx: np.ndarray) -> dict[str, float]:
+    """Gain recovery error ``|K_hat / K - 1|`` (median, p95) of samples ``idx`` predicted as ``pred``.
 
-
-def gain_metrics(pred: np.ndarray, corr: np.ndarray, amplitude: np.ndarray, K: np.ndarray, h: float,
-                 class_amplitude: np.ndarray) -> dict[str, float]:
-    """Gain recovery error ``|K_hat / K - 1|`` (median, p95) with ``K_hat = (a / h) / (a_class corr)``.
-
-    ``pred`` (N,) predicted classes, ``corr`` (N,) amplitude corrections (1: none), ``amplitude``
-    (N,) measured cycle amplitudes, ``K`` (N,) true gains, ``class_amplitude`` (n,) exact MRFT amplitudes.
+    ``K_hat`` from the fundamental response and the predicted class
+    (``uavsim.learning.identify.recover_gain``); empty when the set has no
+    response (older files) or is lateral.
     """
-    if len(pred) == 0:
-        return {"K_err_median": float("nan"), "K_err_p95": float("nan")}
-    K_hat = (np.asarray(amplitude, float) / h) / (np.asarray(class_amplitude, float)[pred] * corr)
-    e = np.abs(K_hat / np.asarray(K, float) - 1.0)
+    from uavsim.learning.identify import recover_gain
+
+    loop = data.attrs.get("loop")
+    if len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude"):
+        return {}
+    K_hat = recover_gain(data.response[idx], data.response_period[idx], pred, data.classes, loop)
+    e = np.abs(K_hat / data.K[idx] - 1.0)
     return {"K_err_median": float(np.median(e)), "K_err_p95": float(np.percentile(e, 95))}
 
 
@@ -401,19 +363,16 @@ def _atomic_save(obj: Any, path: Path) -> None:
             os.unlink(tmp)
 
 
-def _predict(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted classes (N,) and amplitude corrections (N,) (1 without a gain head)."""
+def _predict(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> np.ndarray:
+    """Predicted classes (N,)."""
     net.eval()
-    n = net.cfg.n_classes
-    cls, corr = [], []
+    cls = []
     with torch.inference_mode():
         for i in range(0, X.shape[0], batch):
-            out = net(X[i : i + batch].to(device)).float().cpu()
-            cls.append(out[:, :n].argmax(1))
-            corr.append(out[:, n].exp() if net.cfg.gain_head else torch.ones(out.shape[0]))
+            cls.append(net(X[i : i + batch].to(device)).argmax(1).cpu())
     if not cls:
-        return np.zeros(0, dtype=np.int64), np.zeros(0)
-    return torch.cat(cls).numpy(), torch.cat(corr).double().numpy()
+        return np.zeros(0, dtype=np.int64)
+    return torch.cat(cls).numpy()
 
 
 def _progress(iterable, **kw):
@@ -451,13 +410,10 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
     }
 
 
-def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData, device: torch.device,
-                 h: float) -> dict[str, float]:
-    pred, corr = _predict(net, X, device)
-    m = class_metrics(pred, data.labels[idx], data.J)
-    if data.K is not None and data.amplitude is not None and "amplitude" in data.classes:
-        m.update(gain_metrics(pred, corr, data.amplitude[idx], data.K[idx], h, data.classes["amplitude"]))
-    return m
+def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData,
+                 device: torch.device) -> dict[str, float]:
+    pred = _predict(net, X, device)
+    return {**class_metrics(pred, data.labels[idx], data.J), **gain_metrics(pred, data, idx)}
 
 
 def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dict[str, Any]:
@@ -483,20 +439,14 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         torch.set_num_threads(recipe.threads)
     device = _device(recipe.device)
     tr_idx, va_idx = _split(data.labels, recipe.val_fraction, seed)
-    ratio = log_amplitude_ratio(data)
-    if recipe.gain_head and ratio is None:
-        raise UserError(f"{recipe.dataset}: gain_head needs K and amplitude for every sample; set gain_head = false")
-    use_gain = bool(recipe.gain_head)
-    h = float(data.attrs.get("h", 1.0))
     Xtr = torch.from_numpy(data.X[tr_idx])
     ytr = torch.from_numpy(data.labels[tr_idx])
-    rtr = torch.from_numpy((ratio if use_gain else np.zeros(len(data.labels)))[tr_idx].astype(np.float32))
     Xva = torch.from_numpy(data.X[va_idx])
     if device.type == "cuda":
-        Xtr, ytr, rtr = Xtr.to(device), ytr.to(device), rtr.to(device)
+        Xtr, ytr = Xtr.to(device), ytr.to(device)
 
-    cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout, use_gain, recipe.period_features)
-    n_cls = data.n_classes
+    cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout,
+                    period_features=recipe.period_features)
     net = IdentNet(cfg).to(device)
     loss_fn = JWeightedLoss(data.J).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
@@ -544,22 +494,16 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             idx = perm[b * recipe.batch_size : (b + 1) * recipe.batch_size]
             xb, yb = Xtr[idx].to(device, non_blocking=True), ytr[idx].to(device, non_blocking=True)
             opt.zero_grad(set_to_none=True)
-            out_b = net(xb)
-            loss = loss_fn(out_b[:, :n_cls], yb)
-            if use_gain:
-                loss = loss + recipe.gain_weight * torch.mean((out_b[:, n_cls] - rtr[idx].to(device)) ** 2)
+            loss = loss_fn(net(xb), yb)
             loss.backward()
             opt.step()
             total += float(loss.detach())
         sched.step()
-        vm = _val_metrics(net, Xva, va_idx, data, device, h)
+        vm = _val_metrics(net, Xva, va_idx, data, device)
         rec = {"epoch": epoch, "loss": total / nb, "lr": opt.param_groups[0]["lr"], **{f"val_{k}": v for k, v in vm.items()},
                "elapsed_s": time.perf_counter() - t0}
         history.append(rec)
-        # mean J decides; on a tie (a solved set) the gain error breaks it, so a gain head keeps learning
-        tie = abs(vm["mean_J"] - best["mean_J"]) <= 1e-9
-        if vm["mean_J"] < best["mean_J"] - recipe.min_delta or (
-                tie and use_gain and vm.get("K_err_median", math.inf) < best.get("val_K_err_median", math.inf)):
+        if vm["mean_J"] < best["mean_J"] - recipe.min_delta:
             best = {"mean_J": vm["mean_J"], "epoch": epoch, **{f"val_{k}": v for k, v in vm.items()}}
             best_state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
             stale = 0
@@ -567,7 +511,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             stale += 1
         if not quiet:
             print(f"{recipe.name} epoch {epoch + 1}: loss {rec['loss']:.4f}  val top1 {vm['top1']:.3f}  "
-                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  K err median {vm.get('K_err_median', 0):.3f}  "
+                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  K err median {vm.get('K_err_median', math.nan):.3f}  "
                   f"({rec['elapsed_s']:.0f} s)", file=sys.stderr)
         _atomic_save({
             "fingerprint": recipe.fingerprint(), "epoch": epoch, "model": net.state_dict(), "optim": opt.state_dict(),
@@ -602,7 +546,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         if gi is not None and gt is not None and not np.array_equal(gi, gt):
             raise UserError(f"{recipe.test_dataset}: class subset differs from the training set's")
         report["test"] = _val_metrics(net, torch.from_numpy(test.X), np.arange(len(test.labels)), test,
-                                      torch.device("cpu"), float(test.attrs.get("h", 1.0)))
+                                      torch.device("cpu"))
         report["test_dataset"] = recipe.test_dataset
     Path(out / REPORT).write_text(json.dumps(report, indent=1))
     return report
