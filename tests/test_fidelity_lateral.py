@@ -15,15 +15,11 @@ passing through the rotors' lag) stay below the 1e-3 level (see below).
 
 At the physics rate (2 kHz) period must agree within 1% and amplitude within
 2%. At a 200 Hz controller switching is quantized to 5 ms and two simulations
-that agree to 1e-3 can settle on neighbouring quantized orbits, so as in
-``test_fidelity.py`` the check is statistical: at least 90% of the points
-(pooled over the three cases) within one control sample and 5% amplitude,
-every point within two samples (or 2% of a slow period) and 15%. Measured
-(this seed): beta = -0.73 all 12 within 0.03 samples and 1.1%; beta = 0, 10 of
-12 in spec, the others 2 samples / 1.1% and 8 samples (1.5% of a 2.6 s cycle,
-T2 = 5.2 s) / 2.9%: at beta = 0 slow cycles are sensitive to the 1e-3 shape
-difference of MuJoCo's semi-implicit Euler step (what bounds the open-loop
-agreement, below).
+that agree to 1e-3 can settle on different limit cycles of the sampled loop,
+so as in ``test_fidelity.py`` every point must be within one control sample
+(or 1% of a slow period, whose sample count the 1e-3 shape difference of
+MuJoCo's semi-implicit Euler step can move by more) and 5% amplitude of the
+reference started like MuJoCo, or of another orbit of the exact reference.
 
 Why the tilt is kept near 0.3 deg: the attitude loop closed by the rule PD
 (20 deg phase margin, less once sampled at 200 Hz) resonates, and at
@@ -42,7 +38,7 @@ import zlib
 
 import numpy as np
 import pytest
-from _fidelity import cycle_rows, relay_pair
+from _fidelity import cycle_rows, in_spec_or_other_orbit, relay_pair
 
 from uavsim.lumped.params import RANGES, LumpedParams
 from uavsim.lumped.reference import LateralDiscrete
@@ -108,14 +104,18 @@ def relay_amplitude(params: list[LumpedParams]) -> np.ndarray:
     return np.array([TILT * G * p.T2 / p.K for p in params])
 
 
-def compare(params, beta, dt, rate_hz, duration):
+def compare(params, beta, dt, rate_hz, duration, orbits=None):
+    """Cycle rows (and with a ``within`` predicate ``orbits``, the ``in_spec_or_other_orbit`` verdicts)."""
     n = len(params)
     y0 = np.array([-1e-3 * p.K for p in params])
     x0 = np.zeros((n, 5))
     x0[:, 3] = y0
-    res_y_u = relay_pair(params, beta, relay_amplitude(params), y0, reference(params, dt, rate_hz), x0, dt, rate_hz,
-                         duration)
-    return cycle_rows(params, *res_y_u, rate_hz)
+    ref, h = reference(params, dt, rate_hz), relay_amplitude(params)
+    res, Y, U = relay_pair(params, beta, h, y0, ref, x0, dt, rate_hz, duration)
+    rows = cycle_rows(params, res, Y, U, rate_hz)
+    if orbits is None:
+        return rows
+    return rows, *in_spec_or_other_orbit(rows, orbits, ref, x0, 3, beta, h, rate_hz, Y.shape[1])
 
 
 @pytest.mark.parametrize("loop", ["lateral_x", "lateral_y"])
@@ -177,30 +177,21 @@ def test_output_delay_is_applied():
         assert S[k, i] == pytest.approx(expect, rel=1e-9, abs=1e-12), tau
 
 
-@functools.cache
-def rows_200hz(loop: str, beta: float):
-    rng = np.random.default_rng(zlib.crc32(f"{loop}{beta}".encode()))
-    return compare(random_params(loop, 12, rng), beta, dt=0.0005, rate_hz=200.0, duration=60.0)
-
-
 CASES_200HZ = [("lateral_x", -0.73), ("lateral_y", -0.3), ("lateral_x", 0.0)]
 
 
+def within_200hz(r: tuple, Ts: float = 1 / 200) -> bool:
+    """Within one control sample (or 1% of a slow period) and 5% amplitude."""
+    return abs(r[1] - r[2]) <= max(Ts + 1e-9, 0.01 * r[2]) and abs(r[3] / r[4] - 1) <= 0.05
+
+
 @pytest.mark.parametrize("loop,beta", CASES_200HZ)
-def test_fidelity_200hz_every_point(loop, beta):
-    """Every point keeps its cycle within two samples (or 2% of a slow period) and 15%."""
-    Ts = 1 / 200
-    loose = [r for r in rows_200hz(loop, beta)
-             if abs(r[1] - r[2]) > max(2 * Ts + 1e-9, 0.02 * r[2]) or abs(r[3] / r[4] - 1) > 0.15]
-    assert not loose, loose
-
-
-def test_fidelity_200hz_within_spec():
-    """Pooled over the cases (36 points), 90% within one control sample and 5% amplitude."""
-    Ts = 1 / 200
-    rows = [r for case in CASES_200HZ for r in rows_200hz(*case)]
-    within = [abs(r[1] - r[2]) <= Ts + 1e-9 and abs(r[3] / r[4] - 1) <= 0.05 for r in rows]
-    assert np.mean(within) >= 0.9, [r for r, ok in zip(rows, within, strict=True) if not ok]
+def test_fidelity_200hz(loop, beta):
+    """Every point within spec of the reference, or of another cycle of the exact reference."""
+    rng = np.random.default_rng(zlib.crc32(f"{loop}{beta}".encode()))
+    rows, ok, _ = compare(random_params(loop, 12, rng), beta, dt=0.0005, rate_hz=200.0, duration=60.0,
+                          orbits=within_200hz)
+    assert all(ok), [r for r, good in zip(rows, ok, strict=True) if not good]
 
 
 @pytest.mark.slow
