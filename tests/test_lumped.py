@@ -114,6 +114,17 @@ def test_ise_matches_time_simulation():
     assert q_t == pytest.approx(q_f, rel=0.01)
 
 
+def test_lateral_ise_matches_time_simulation():
+    """Lateral: the time simulation (attitude PD inside, both derivatives see the step) against the
+    frequency-domain ISE, for a rule-tuned and a twice-as-aggressive PD."""
+    p = _lateral()
+    g = TuningRule(-0.3, 45.0).gains(p)
+    for scale in (1.0, 1.5):
+        q_f = step_ise(p, scale * g.kp, scale * g.kd, g.N)
+        q_t = step_ise(p, scale * g.kp, scale * g.kd, g.N, method="time")
+        assert math.isfinite(q_f) and q_t == pytest.approx(q_f, rel=0.01)
+
+
 def test_unstable_ise_is_inf():
     g = TuningRule().gains(ALT)
     assert step_ise(ALT, 5 * g.kp, g.kd, g.N) == math.inf

@@ -119,3 +119,64 @@ def test_tune_cli_invalid(cli, capsys):
     assert cli(["tune", "--loop", "altitude", "--T-prop", "0.3", "--T1", "0", "--tau", "0.01", "--json"]) == 2
     assert "time constants" in capsys.readouterr().err
     assert cli(["tune", "--loop", "lateral_x", "--T-prop", "0.05", "--T1", "0.5", "--tau", "0.1"]) == 2
+
+
+def test_gain_scale_sets_loop_gain_at_omega():
+    c1, c3 = rule_constants(-0.6, 25.0)
+    assert rule_constants(-0.6, 25.0, 0.6) == pytest.approx((0.6 * c1, c3))
+    p = LumpedParams("altitude", 2.0, 0.1, 0.8, 0.02)
+    g = TuningRule(-0.6, 25.0, 0.6).gains(p)
+    L = (g.kp + 1j * g.omega * g.kd) * freq_response(p, np.array([g.omega]))[0]
+    assert abs(L) == pytest.approx(0.6, rel=1e-9)
+    assert math.degrees(np.angle(L)) == pytest.approx(-180 + 25.0, abs=1e-6)
+    assert g.gain_scale == 0.6 and g.c1 == pytest.approx(0.6 * c1)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(UserError, match="gain scale"):
+            rule_constants(-0.6, 25.0, bad)
+
+
+def test_rule_candidates_respect_lead_bounds():
+    from uavsim.tuning.search import rule_candidates
+
+    c = rule_candidates([-0.9, -0.1], [20.0, 80.0], [1.0, 0.5])
+    # beta -0.9 needs pm < 25.8 deg for a lead below 90 deg
+    assert (-0.9, 80.0, 1.0) not in c and (-0.9, 20.0, 0.5) in c and (-0.1, 80.0, 1.0) in c
+    assert len(c) == 6
+
+
+def test_lateral_rule_search_stabilizes_a_slow_attitude_class():
+    """Over the slowest attitude class the classic rule leaves much of the (T2, tau_out) box unstable;
+    the robust search (gain scale < 1) keeps a sample of it stable with a bounded deterioration."""
+    from uavsim.tuning.grid import (
+        _box_sample,
+        _omega,
+        attitude_of,
+        choose_lateral_rule,
+        load_grid,
+        own_loop_stable,
+    )
+
+    att = attitude_of(load_grid("attitude"), 0)
+    X = _box_sample("lateral", np.random.default_rng(2), 60)
+    classic = TuningRule(-0.1, 20.0)
+    assert own_loop_stable("lateral", X, _omega("lateral", X, -0.1, att), classic, att).mean() < 0.8
+    ch = choose_lateral_rule(att, np.random.default_rng(0), n_det=6, n_stable=40)
+    assert ch["stable_fraction"] == 1.0 and ch["gain_scale"] < 1.0
+    assert 1.0 <= ch["worst_deterioration"] < 2.0
+    rule = TuningRule(ch["beta"], ch["pm_deg"], ch["gain_scale"])
+    assert own_loop_stable("lateral", X, _omega("lateral", X, rule.beta, att), rule, att).all()
+
+
+def test_optimal_pd_beats_the_rule_where_the_rule_is_unstable():
+    from uavsim.lumped.ise import step_ise_batch
+    from uavsim.tuning.grid import _proc_params, attitude_of, load_grid
+    from uavsim.tuning.search import optimal_pd_batch
+
+    att = attitude_of(load_grid("attitude"), 0)
+    X = np.array([[0.2, 0.0005], [6.0, 0.15]])  # the first is unstable under the classic rule
+    pp = {"K": 1.0, **_proc_params("lateral", X, att)}
+    g = TuningRule(-0.1, 20.0).gains_batch("lateral", **pp)
+    q_rule = step_ise_batch("lateral", g["kp"], g["kd"], g["N"], g["omega"], **pp)
+    q_opt = optimal_pd_batch("lateral", pp, g["N"], g["omega"], g["gain_at_omega"])
+    assert not np.isfinite(q_rule[0]) and np.isfinite(q_opt[0])
+    assert q_opt[1] <= q_rule[1] * (1 + 1e-6)

@@ -143,9 +143,10 @@ class _LateralBatch:
         self.dt = dt
         # outer: K / (s (T2 s + 1)) driven by theta(t - tau_out), theta sampled and held
         self.outer = _InnerBatch(K, np.zeros(n), T2, tau, dt)  # T_prop = 0: K/(s(T2 s+1))
+        # at rest before t = 0 (reference and attitude 0): a first reference jump enters the
+        # attitude derivative, as it enters the continuous C(s) of the frequency-domain ISE
         self.e_prev = np.zeros(n)
         self.dstate = np.zeros(n)
-        self.first = True
 
     @property
     def y(self) -> np.ndarray:
@@ -153,9 +154,9 @@ class _LateralBatch:
 
     def step(self, u: np.ndarray) -> None:
         e = u - self.att.y  # attitude reference minus attitude
-        raw = np.zeros_like(e) if self.first else (e - self.e_prev) / self.dt
+        raw = (e - self.e_prev) / self.dt
         self.dstate = self.dstate + self.a * (raw - self.dstate)
-        self.e_prev, self.first = e, False
+        self.e_prev = e
         ua = self.kp * e + self.kd * self.dstate
         theta = self.att.y.copy()
         self.att.step(ua)
@@ -228,11 +229,12 @@ def simulate_relay_batch(family: str, beta, h, dt: float, n_steps: int, **params
 def simulate_pd_step_batch(family: str, kp, kd, N, dt: float, n_steps: int, **params) -> dict[str, np.ndarray]:
     """Unit reference step at t = 0 under the sampled PD of session.md ("step").
 
-    ``raw_k = (e_k - e_{k-1})/dt`` (0 on the first sample), ``d_k = d_{k-1} + a (raw_k - d_{k-1})``,
-    ``a = dt N/(1 + dt N)``, ``u_k = kp e_k + kd d_k``. At small dt this tends to the
-    continuous ``C(s) = kp + kd s/(1 + s/N)`` (the first-sample convention drops the
-    derivative kick of the step, which the continuous PD would also not see through
-    the filter's finite bandwidth only in the limit dt -> 0; use dt << 1/N).
+    ``raw_k = (e_k - e_{k-1})/dt`` with ``e_{-1} = 0`` (at rest before the step, so the
+    step enters the derivative), ``d_k = d_{k-1} + a (raw_k - d_{k-1})``,
+    ``a = dt N/(1 + dt N)``, ``u_k = kp e_k + kd d_k``. At small dt (dt << 1/N) this
+    tends to the continuous ``C(s) = kp + kd s/(1 + s/N)``, derivative kick included,
+    whose ISE ``uavsim.lumped.ise`` computes in the frequency domain. (Lateral loops:
+    the attitude PD inside sees the lateral command's jumps the same way.)
 
     Returns
     -------

@@ -12,6 +12,15 @@ The derivative is filtered at ``N = 10 Omega`` rad/s (``derivative_filter_hz =
 10 Omega / (2 pi)``). Gains are for the process as given; for a unit-gain model
 (K = 1) a process of gain K takes ``kp/K, kd/K``.
 
+A loop-gain scale ``gain_scale`` (``s``, default 1) multiplies ``Kp`` and ``Kd``:
+``|C(j Omega) G(j Omega)| = s`` for the ideal PD, so ``s < 1`` puts the crossover
+below ``Omega`` (a lower-bandwidth loop) and ``pm`` is then the phase of ``L(j Omega)``
+above -pi rather than the phase margin. The inner loops use ``s = 1``; the lateral
+loops need ``s < 1`` because their MRFT frequency sits on the resonance of the
+closed attitude loop, where ``|G|`` still rises above ``Omega`` and a crossover at
+``Omega`` leaves a second crossover with the phase past -pi
+(``uavsim.tuning.grid``, lateral grids).
+
 The published flight constants c1 = 0.3849, c3 = 0.3817 satisfy the c1(c3)
 relation to 4 digits and correspond to ``asin(-beta) + pm = 67.37 deg``, i.e.
 ``beta = -0.7357`` at pm = 20 deg; (beta, pm) = (-0.73, 20 deg) itself gives
@@ -43,17 +52,30 @@ DEFAULT_BETA = -0.73
 DEFAULT_PM_DEG = 20.0
 
 
-def rule_constants(beta: float, pm_deg: float) -> tuple[float, float]:
-    """``(c1, c3)`` of the homogeneous rule for MRFT ``beta`` and phase margin ``pm_deg`` (deg)."""
+def rule_constants(beta: float, pm_deg: float, gain_scale: float = 1.0) -> tuple[float, float]:
+    """``(c1, c3)`` of the homogeneous rule.
+
+    Parameters
+    ----------
+    beta : float
+        MRFT parameter, in (-1, 1).
+    pm_deg : float
+        Phase of the ideal-PD loop at ``Omega`` above -180 deg, deg (the phase margin when
+        ``gain_scale`` is 1).
+    gain_scale : float
+        Loop gain ``|C G|`` at ``Omega``, in (0, 1]; 1 is the classic rule.
+    """
     beta = check_beta(beta)
     if not isinstance(pm_deg, (int, float, np.floating)) or not math.isfinite(pm_deg) or pm_deg <= 0:
         raise UserError(f"phase margin must be a number > 0 deg, got {pm_deg!r}")
+    if not isinstance(gain_scale, (int, float, np.floating)) or not 0.0 < gain_scale <= 1.0:
+        raise UserError(f"gain scale must be a number in (0, 1], got {gain_scale!r}")
     # atan(2 pi c3) = pm - asin(beta) must be in (0, 90) deg for a finite positive Td
     lead = math.radians(pm_deg) - math.asin(beta)
     if not 0.0 < lead < math.pi / 2:
         raise UserError(f"pm={pm_deg} deg with beta={beta} needs a derivative phase lead of {math.degrees(lead):.1f} deg (must be in (0, 90))")
     c3 = math.tan(math.asin(beta) - math.radians(pm_deg)) / (-2.0 * math.pi)
-    c1 = 1.0 / math.sqrt(1.0 + 4.0 * math.pi**2 * c3**2)
+    c1 = float(gain_scale) / math.sqrt(1.0 + 4.0 * math.pi**2 * c3**2)
     return c1, c3
 
 
@@ -63,7 +85,8 @@ class Gains:
 
     Attributes: ``kp`` (command/output), ``kd`` (command s/output),
     ``derivative_filter_hz`` (Hz), ``omega`` (DF MRFT frequency, rad/s),
-    ``amplitude_df`` (DF amplitude at h = 1, output units), ``beta``, ``pm_deg``, ``c1``, ``c3``.
+    ``amplitude_df`` (DF amplitude at h = 1, output units), ``beta``, ``pm_deg``, ``c1``, ``c3``,
+    ``gain_scale`` (loop gain at ``omega``, 1 for the classic rule).
     """
 
     kp: float
@@ -75,6 +98,7 @@ class Gains:
     pm_deg: float
     c1: float
     c3: float
+    gain_scale: float = 1.0
 
     @property
     def N(self) -> float:
@@ -87,14 +111,15 @@ class Gains:
 
 @dataclass(frozen=True)
 class TuningRule:
-    """The homogeneous MRFT rule at ``(beta, pm_deg)``."""
+    """The homogeneous MRFT rule at ``(beta, pm_deg)``, loop gain ``gain_scale`` at Omega."""
 
     beta: float = DEFAULT_BETA
     pm_deg: float = DEFAULT_PM_DEG
+    gain_scale: float = 1.0
 
     @property
     def constants(self) -> tuple[float, float]:
-        return rule_constants(self.beta, self.pm_deg)
+        return rule_constants(self.beta, self.pm_deg, self.gain_scale)
 
     def gains_batch(self, family: str, **params) -> dict[str, np.ndarray]:
         """Rule gains for many processes of one family.
@@ -144,4 +169,5 @@ class TuningRule:
             pm_deg=self.pm_deg,
             c1=c1,
             c3=c3,
+            gain_scale=self.gain_scale,
         )
