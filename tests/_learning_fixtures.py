@@ -35,7 +35,8 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
                        loop: str = "altitude", response: bool = True) -> Path:
     """Synthetic cycles of ``n_classes`` unit-gain altitude-like classes; with ``response``, each episode's
     fundamental response is its class's ``K G(j w)`` (as sampled at 200 Hz) times 1% noise."""
-    from uavsim.learning.identify import class_gain_at
+    from uavsim.learning.identify import held_response
+    from uavsim.lumped.frequency import freq_response_batch
 
     X, y = synthetic_cycles(n_classes, per_class, L, seed)
     N = len(y)
@@ -43,14 +44,26 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
     K = np.exp(rng.uniform(np.log(0.5), np.log(2.0), N))
     classes = {k: np.linspace(0.1, 1.0, n_classes) for k in
                ("T_prop", "T1", "tau", "kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")}
+    classes["tau"] = np.linspace(0.005, 0.05, n_classes)
+    if response:  # the classes' own rule gains, so that a right class gives the right gains
+        from uavsim.tuning.grid import load_grid
+        from uavsim.tuning.rule import TuningRule
+
+        g = load_grid("altitude")
+        rule = TuningRule(g.beta, g.pm_deg).gains_batch("altitude", K=1.0, T_prop=classes["T_prop"],
+                                                        T1=classes["T1"], tau=classes["tau"])
+        classes.update(kp=rule["kp"], kd=rule["kd"], omega=rule["omega"])
     eps = {"inputs": X, "labels": y, "K": K, "bias": np.zeros(N), "noise_kind": np.zeros(N),
            "noise_level": np.zeros(N), "period": np.ones(N), "amplitude": K * classes["amplitude"][y],
            "y0": np.zeros(N), "tau_obs": np.zeros(N), "a_n": np.zeros(N), "episode": np.arange(N),
            "sim_seed": np.zeros(N)}
     if response:
         period = 1.0 + 0.5 * y / n_classes
-        g = K * class_gain_at(classes, y, "altitude", 2 * np.pi / period, 200.0) * (1 + 0.01 * rng.standard_normal(N))
-        eps.update(response_re=g * np.cos(2.0), response_im=g * np.sin(2.0), response_period=period)
+        w = 2 * np.pi / period
+        G = freq_response_batch("altitude", w[:, None], K=K, T_prop=classes["T_prop"][y], T1=classes["T1"][y],
+                                tau=classes["tau"][y])[:, 0]
+        r = held_response(G, w, 200.0) * (1 + 0.01 * rng.standard_normal(N))
+        eps.update(response_re=r.real, response_im=r.imag, response_period=period)
     attrs = {"loop": loop, "grid_hash": "test", "grid_version": 1, "beta": -0.73, "h": 1.0, "tau_obs": 0.0,
              "a_n": 0.0, "rate_hz": 200.0, "input_length": L, "channels": ["y", "u"], "recipe": "seed = 0\n",
              "seed": seed, "versions": json.dumps({}), "git_commit": "test", "n_episodes": N, "n_diverged": 0,

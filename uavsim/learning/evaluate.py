@@ -7,8 +7,8 @@ Three views, from the cheapest to the one that matters:
 * **off-grid processes**: random processes drawn log-uniformly in the paper's
   box (not grid points), simulated in MuJoCo through the dataset path
   (``uavsim.data.generate.simulate_features``: same relay, noise, preprocessing);
-* **closed-loop criterion**: the gains the pipeline picks (class gains scaled by
-  the recovered ``K_hat``) against the tuning rule applied to the *true*
+* **closed-loop criterion**: the gains the pipeline picks (the rule on the
+  class's model fitted to the measured response) against the tuning rule applied to the *true*
   process: ISE deterioration ``Q(picked, G) / Q(rule(G), G) - 1`` of a unit step
   (``uavsim.lumped.ise.step_ise_batch``, exact delays); an unstable loop is
   ``inf`` and counted. This includes the gain-recovery error, which the
@@ -35,10 +35,11 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
+from uavsim.learning.identify import fit_response, measured_point_gains, model_gains
 from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
 
-__all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "amplitude_gain",
+__all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "class_gains", "amplitude_gain",
            "closed_loop_deterioration",
            "evaluate_offgrid", "summarize_deterioration"]
 
@@ -91,8 +92,8 @@ def random_processes(loop: str, n: int, seed: int, K: tuple[float, float] = (0.5
             for i in range(n)]
 
 
-def pipeline_gains(cls: np.ndarray, K_hat: np.ndarray, table: dict[str, Any]) -> dict[str, np.ndarray]:
-    """Gains identification picks: the class's rule gains (K = 1) over ``K_hat``.
+def class_gains(cls: np.ndarray, K_hat: np.ndarray, table: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The class's rule gains (K = 1) over ``K_hat`` (the authors' tuning lookup).
 
     Returns ``K_hat``, ``kp``, ``kd``, ``N`` (rad/s), each (m,).
     """
@@ -101,6 +102,15 @@ def pipeline_gains(cls: np.ndarray, K_hat: np.ndarray, table: dict[str, Any]) ->
     return {"K_hat": K_hat, "kp": np.asarray(table["kp"], float)[cls] / K_hat,
             "kd": np.asarray(table["kd"], float)[cls] / K_hat,
             "N": 2 * np.pi * np.asarray(table["derivative_filter_hz"], float)[cls]}
+
+
+def pipeline_gains(cls: np.ndarray, response: np.ndarray, response_period: np.ndarray, table: dict[str, Any],
+                   family: str, beta: float, pm_deg: float) -> dict[str, np.ndarray]:
+    """What identification picks (``uavsim.learning.identify``): the rule on the class's model fitted
+    to the measured response. Returns ``K_hat``, ``tau_hat``, ``kp``, ``kd``, ``N`` (rad/s), each (m,)."""
+    model = fit_response(response, response_period, cls, table, family)
+    g = model_gains(model, family, beta, pm_deg)
+    return {"K_hat": model["K"], "tau_hat": model["tau"], "kp": g["kp"], "kd": g["kd"], "N": g["N"]}
 
 
 def amplitude_gain(cls: np.ndarray, amplitude: np.ndarray, h: float | np.ndarray, table: dict[str, Any]) -> np.ndarray:
@@ -114,7 +124,7 @@ def closed_loop_deterioration(params: list[LumpedParams], kp: np.ndarray, kd: np
     """Step-ISE deterioration of given PD gains against the rule's gains for each true process.
 
     Returns ``Q_picked``, ``Q_rule`` (output^2 s), ``deterioration`` (Q_picked / Q_rule - 1; inf if
-    unstable) and ``stable`` (m,) bool.
+    unstable), ``stable`` (m,) bool and the rule's own ``kp_rule``, ``kd_rule`` (m,).
     """
     from uavsim.lumped.ise import step_ise_batch
     from uavsim.tuning.rule import TuningRule
@@ -126,7 +136,8 @@ def closed_loop_deterioration(params: list[LumpedParams], kp: np.ndarray, kd: np
     q_pick, stable = step_ise_batch(fam, kp, kd, N, rule["omega"], return_stable=True, **pa)
     with np.errstate(invalid="ignore", divide="ignore"):
         det = np.where(stable, q_pick / q_rule - 1.0, np.inf)
-    return {"Q_picked": q_pick, "Q_rule": q_rule, "deterioration": det, "stable": stable}
+    return {"Q_picked": q_pick, "Q_rule": q_rule, "deterioration": det, "stable": stable, "kp_rule": rule["kp"],
+            "kd_rule": rule["kd"]}
 
 
 def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
@@ -163,14 +174,17 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     -------
     dict: ``n``, ``n_rejected`` (no usable oscillation: not identified), ``seed``,
     ``deterioration`` (``summarize_deterioration``), ``J`` (normalized J of the predicted class:
-    mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|), ``by_noise`` (median
+    mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|; not a measure of the gains by
+    itself: classes of one Omega level differ in gain normalization), ``kp_rel_err``,
+    ``kd_rel_err`` (against the rule's gains for the true process), ``by_noise`` (median
     deterioration per noise level band), ``baseline_nearest_period`` (deterioration when the
-    class is the one of nearest exact period), ``amplitude_gain_recovery`` (deterioration and
-    K error with the network's classes but ``K_hat`` from the amplitude), ``wall_s``.
+    class is the one of nearest exact period), ``class_table_gains`` (deterioration and
+    errors of the class's tabulated gains over ``K_hat`` from the amplitude, ``amplitude_K``, or
+    from the response, ``response_K``, with the network's classes), ``measured_point_rule``
+    (deterioration of ``measured_point_gains``: no network, no model), ``wall_s``.
     """
     from uavsim.data.generate import simulate_features
     from uavsim.data.recipe import load_recipe
-    from uavsim.learning.identify import recover_gain
     from uavsim.tuning.grid import load_grid
     from uavsim.tuning.jmatrix import deterioration
 
@@ -200,13 +214,20 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     cls, _ = pred.predict(X[idx])
     h = recipe.test.h
     fam = meta["loop"]
-    g = pipeline_gains(cls, recover_gain(resp[idx], rper[idx], cls, table, fam), table)
+    g = pipeline_gains(cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     used = [params[i] for i in idx]
     cl = closed_loop_deterioration(used, g["kp"], g["kd"], g["N"], grid.beta, grid.pm_deg)
     K_true = np.array([p.K for p in used])
-    # same run, the authors' gain recovery from the amplitude (what the response replaces)
-    ga = pipeline_gains(cls, amplitude_gain(cls, amp[idx], h, table), table)
-    det_amp = closed_loop_deterioration(used, ga["kp"], ga["kd"], ga["N"], grid.beta, grid.pm_deg)["deterioration"]
+    # same run, the class-table lookup (the authors' tuning): the class's gains over K_hat from the
+    # amplitude (their recovery) or from the response at the measured frequency
+    lookups = {}
+    for name, K_hat in (("amplitude_K", amplitude_gain(cls, amp[idx], h, table)),
+                        ("response_K", fit_response(resp[idx], rper[idx], cls, table, fam)["K"])):
+        gl = class_gains(cls, K_hat, table)
+        lookups[name] = {
+            "deterioration": summarize_deterioration(
+                closed_loop_deterioration(used, gl["kp"], gl["kd"], gl["N"], grid.beta, grid.pm_deg)["deterioration"]),
+            "K_rel_err": _rel_err(K_hat, K_true), "kp_rel_err": _rel_err(gl["kp"], cl["kp_rule"])}
     # normalized J of the predicted class's controller on the true process (no gain error)
     gi = np.asarray(table.get("grid_index", np.arange(len(table["kp"]))), dtype=np.int64)
     pa = {k: np.array([getattr(p, k) for p in used]) for k in ("T_prop", "T1", "tau")}
@@ -216,10 +237,13 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     Jpc = deterioration(grid.loop, w_pt, grid.omega_df[gi], grid.c1, grid.c3, **pa)  # (n_classes, m)
     jsel = Jpc[cls, np.arange(len(idx))]
     det = cl["deterioration"]
-    # same-run baseline: the class of nearest exact period, no correction (what a network must beat)
+    # same-run baseline: the class of nearest exact period, fitted the same way (what a network must beat)
     near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
-    gb = pipeline_gains(near, recover_gain(resp[idx], rper[idx], near, table, fam), table)
+    gb = pipeline_gains(near, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     det_base = closed_loop_deterioration(used, gb["kp"], gb["kd"], gb["N"], grid.beta, grid.pm_deg)["deterioration"]
+    # same run, no network and no model: the rule's constants at the measured point
+    gm = measured_point_gains(resp[idx], rper[idx], grid.beta, grid.pm_deg)
+    det_mp = closed_loop_deterioration(used, gm["kp"], gm["kd"], gm["N"], grid.beta, grid.pm_deg)["deterioration"]
     bands = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.15), (0.15, 0.2001)]
     by_noise = {}
     for lo, hi in bands:
@@ -231,11 +255,12 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         "noise_level_max": float(np.max(level)) if level.size else 0.0,
         "deterioration": summarize_deterioration(det),
         "baseline_nearest_period": summarize_deterioration(det_base),
-        "amplitude_gain_recovery": {
-            "deterioration": summarize_deterioration(det_amp),
-            "K_rel_err": _rel_err(ga["K_hat"], K_true)},
+        "class_table_gains": lookups,
+        "measured_point_rule": summarize_deterioration(det_mp),
         "J": {"mean": float(np.mean(jsel)), "p95": float(np.percentile(jsel, 95))} if jsel.size else {},
         "K_rel_err": _rel_err(g["K_hat"], K_true),
+        "kp_rel_err": _rel_err(g["kp"], cl["kp_rule"]),
+        "kd_rel_err": _rel_err(g["kd"], cl["kd_rule"]),
         "by_noise": by_noise,
         "wall_s": time.perf_counter() - t0,
     }

@@ -7,17 +7,24 @@ From a session (``uavsim-session/1``) with an ``np-mrft`` (or ``mrft``) run:
    same normalization, same input length);
 2. predict the class with the exported network of the loop's family
    (``uavsim.learning.export.Predictor``);
-3. recover the gain from the loop's fundamental response: the ratio ``Y1 / (h U1)``
-   of the first harmonics of y and of the command over the last steady cycles
-   (``CycleFeatures.response``) is the process's ``K G_n(j w)`` at the cycle's
-   frequency ``w``, whatever the relay's bias, ``tau_obs``, ``a_n`` and the
-   sampling did to the cycle, so ``K_hat = |response| / |G_class(j w)|`` with
-   the identified class's unit-gain model (``recover_gain``). (The authors'
-   ``K_hat = (a / h) / a_class``, from the plain continuous MRFT's amplitude,
-   is biased by tens of percent by exactly those; ``uavsim.learning.evaluate``
-   reports both.)
-4. scale the class's rule gains (for K = 1) to the real process:
-   ``kp = kp_class / K_hat``, ``kd = kd_class / K_hat``.
+3. fit the class's model to the loop's measured frequency response: the ratio
+   ``Y1 / (h U1)`` of the first harmonics of y and of the command over the last
+   steady cycles (``CycleFeatures.response``) is, once the zero-order hold's
+   ``sinc(w Ts/2) e^{-j w Ts/2}`` is removed, the process's ``G(j w)`` at the
+   cycle's frequency ``w``, whatever the relay's bias, ``tau_obs``, ``a_n`` and
+   the sampling did to the cycle. The identified model keeps the class's lags
+   ``T_prop``, ``T1`` and takes the gain ``K`` and delay ``tau`` that put its
+   response exactly on that point (``fit_response``);
+4. tune: the homogeneous rule of the grid (``beta``, ``pm``) applied to the
+   identified model (``model_gains``).
+
+Why not the class's tabulated gains scaled by ``K_hat = (a / h) / a_class``
+(the authors' recovery)? The class amplitude is the plain continuous MRFT's,
+and the measured cycle carries the 200 Hz sampling, ``tau_obs``, ``a_n``, the
+bias and noise (median ``|K_hat / K - 1|`` 57% off-grid); and a class whose
+``Omega`` is one level off would bring its ``Omega`` into the gains. Fitting
+the measured point makes the gains depend on the network only through the
+lags' local shape. ``uavsim.learning.evaluate`` reports both, in one run.
 
 A session without a usable oscillation (too short for two cycles, no
 switching, a relay command that is not +-h, a flat or saturated output) is an
@@ -43,7 +50,7 @@ from uavsim.errors import UserError
 from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
-           "recover_gain", "class_gain_at", "SATURATION_FRACTION"]
+           "fit_response", "model_gains", "measured_point_gains", "held_response", "SATURATION_FRACTION"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -81,58 +88,97 @@ def _predictor(d: Path) -> Predictor:
     return _predictors[key]
 
 
-def class_gain_at(table: dict[str, Any], cls: np.ndarray, family: str, omega: np.ndarray,
-                  rate_hz: float) -> np.ndarray:
-    """``|G(j w)|`` of unit-gain class models as a controller at ``rate_hz`` samples them.
+def held_response(G: np.ndarray, omega: np.ndarray, rate_hz: float) -> np.ndarray:
+    """What a controller at ``rate_hz`` measures of a process response ``G(j w)``: its command is held.
 
-    The command is held between samples, which scales the fundamental the
-    output sees by ``sinc(w Ts / 2)`` against the command's samples.
-
-    Parameters
-    ----------
-    table : class table (``T_prop``, ``T1``, ``tau`` columns, (n_classes,))
-    cls : (m,) int, classes
-    family : ``"altitude"`` or ``"attitude"``
-    omega : (m,) rad/s, frequency of each
-    rate_hz : float, rate of the samples the response was measured on
-
-    Returns
-    -------
-    (m,) output units per command unit
+    A held command's fundamental is its samples' times ``sinc(w Ts / 2) e^{-j w Ts / 2}``, so the
+    sampled output over the command's samples is ``G(j w)`` times that (aliases neglected: the
+    cycles here are 28 samples or longer). Shapes broadcast.
     """
-    from uavsim.lumped.frequency import freq_response_batch
-
-    if family not in ("altitude", "attitude"):
-        raise UserError(f"gain recovery from the response needs an inner-loop class table, not {family!r}")
-    cls = np.asarray(cls, dtype=np.int64)
-    w = np.asarray(omega, dtype=np.float64).reshape(-1, 1)
-    par = {k: np.asarray(table[k], dtype=np.float64)[cls] for k in ("T_prop", "T1", "tau")}
-    g = np.abs(freq_response_batch(family, w, K=1.0, **par))[:, 0]
-    x = w[:, 0] / (2.0 * rate_hz)
-    return g * np.sinc(x / np.pi)
+    x = np.asarray(omega, dtype=np.float64) / (2.0 * rate_hz)
+    return np.asarray(G) * np.sinc(x / np.pi) * np.exp(-1j * x)
 
 
-def recover_gain(response: np.ndarray, response_period: np.ndarray, cls: np.ndarray, table: dict[str, Any],
-                 family: str, rate_hz: float | None = None) -> np.ndarray:
-    """``K_hat = |response| / |G_class(j w)|``, ``w = 2 pi / response_period`` (see module docstring).
+def fit_response(response: np.ndarray, response_period: np.ndarray, cls: np.ndarray, table: dict[str, Any],
+                 family: str, rate_hz: float | None = None) -> dict[str, np.ndarray]:
+    """Identified models: the classes' lags with the gain and delay that match the measured response.
 
     Parameters
     ----------
     response : (m,) complex, ``CycleFeatures.response`` (output units per command unit)
-    response_period : (m,) s
-    cls : (m,) int, identified classes
-    table : class table
+    response_period : (m,) s, the period of the cycles it was measured on
+    cls : (m,) int, identified classes (rows of ``table``)
+    table : class table with ``T_prop``, ``T1``, ``tau`` columns
     family : ``"altitude"`` or ``"attitude"``
     rate_hz : rate of the samples the response was measured on (default ``INPUT_RATE_HZ``)
 
     Returns
     -------
-    (m,) K_hat
+    dict of (m,) arrays: ``K``, ``T_prop``, ``T1`` (the class's), ``tau`` (s, >= 0), and
+    ``tau_class`` (the class's delay, for reference). With
+    ``G0 = 1 / (jw (T_prop jw + 1)(T1 jw + 1))``: ``K = |G(jw)| / |G0(jw)|`` and
+    ``tau = (arg G0(jw) - arg G(jw)) / w``, the measured phase taken on the branch
+    nearest the class's own phase; a delay below 0 (the class has less lag than
+    measured) is clipped to 0.
     """
     from uavsim.data.preprocess import INPUT_RATE_HZ
 
+    if family not in ("altitude", "attitude"):
+        raise UserError(f"the response fit needs an inner-loop class table, not {family!r}")
+    cls = np.asarray(cls, dtype=np.int64)
     w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
-    return np.abs(np.asarray(response)) / class_gain_at(table, cls, family, w, rate_hz or INPUT_RATE_HZ)
+    G = np.asarray(response) / held_response(1.0, w, rate_hz or INPUT_RATE_HZ)
+    Tp, T1, tau_c = (np.asarray(table[k], dtype=np.float64)[cls] for k in ("T_prop", "T1", "tau"))
+    ph0 = -0.5 * np.pi - np.arctan(w * Tp) - np.arctan(w * T1)  # unwrapped phase of G0
+    mag0 = 1.0 / (w * np.hypot(1.0, w * Tp) * np.hypot(1.0, w * T1))
+    ph_c = ph0 - w * tau_c
+    ph_m = ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
+    return {"K": np.abs(G) / mag0, "T_prop": Tp, "T1": T1, "tau": np.maximum((ph0 - ph_m) / w, 0.0),
+            "tau_class": tau_c}
+
+
+def model_gains(model: dict[str, np.ndarray], family: str, beta: float, pm_deg: float) -> dict[str, np.ndarray]:
+    """The homogeneous rule at ``(beta, pm_deg)`` applied to identified models (``fit_response``).
+
+    Returns ``kp``, ``kd``, ``N`` (rad/s), ``derivative_filter_hz``, ``omega`` (rad/s), each (m,).
+    """
+    from uavsim.tuning.rule import TuningRule
+
+    g = TuningRule(beta, pm_deg).gains_batch(family, K=model["K"], T_prop=model["T_prop"], T1=model["T1"],
+                                             tau=model["tau"])
+    return {k: np.asarray(g[k], dtype=np.float64) for k in ("kp", "kd", "N", "derivative_filter_hz", "omega")}
+
+
+def measured_point_gains(response: np.ndarray, response_period: np.ndarray, beta: float, pm_deg: float,
+                         rate_hz: float | None = None) -> dict[str, np.ndarray]:
+    """The rule's constants at the measured point, no model: ``kp = c1 / |G(j w)|``, ``Td = c3 2 pi / w``.
+
+    Boiko's non-parametric MRFT tuning with the exact first-harmonic gain of the
+    cycle (ZOH removed) in place of the describing function's ``4 h / (pi a)``,
+    at the measured frequency ``w`` in place of the MRFT's. NP-MRFT at a sampled
+    controller cycles below the MRFT frequency, where the process lags less, so
+    the loop gets its crossover at ``w`` with at least the rule's phase margin.
+    Returns ``kp``, ``kd``, ``N`` (rad/s), ``derivative_filter_hz``, ``omega``, each (m,).
+    """
+    from uavsim.data.preprocess import INPUT_RATE_HZ
+    from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
+    from uavsim.tuning.rule import rule_constants
+
+    c1, c3 = rule_constants(beta, pm_deg)
+    w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
+    kp = c1 / np.abs(np.asarray(response) / held_response(1.0, w, rate_hz or INPUT_RATE_HZ))
+    N = DERIVATIVE_FILTER_RATIO * w
+    return {"kp": kp, "kd": kp * c3 * 2.0 * np.pi / w, "N": N, "derivative_filter_hz": N / (2 * np.pi), "omega": w}
+
+
+def rule_of(meta: dict[str, Any]) -> tuple[float, float]:
+    """``(beta, pm_deg)`` of the grid a network was trained on (older exports lack ``pm_deg``: the grid's)."""
+    if meta.get("pm_deg") is not None and meta.get("beta") is not None:
+        return float(meta["beta"]), float(meta["pm_deg"])
+    from uavsim.tuning.grid import load_grid
+
+    g = load_grid(meta["loop"])
+    return float(meta.get("beta", g.beta)), float(g.pm_deg)
 
 
 def _check_not_saturated(y: np.ndarray) -> None:
@@ -164,9 +210,11 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
 
     Returns
     -------
-    dict with ``class``, ``params`` (K, T_prop, T1, tau), ``gains`` (kp, kd,
-    derivative_filter_hz, for the identified K) and ``oscillation`` (period s,
-    amplitude output units, n_cycles, start, stop).
+    dict with ``class``, ``params`` (the identified model: K, T_prop, T1, tau), ``gains``
+    (kp, kd, derivative_filter_hz: the rule on that model), ``class_params`` (the class's own
+    T_prop, T1, tau), ``gains_measured_point`` (``measured_point_gains``, no model),
+    ``oscillation`` (period s, amplitude output units, n_cycles, start, stop) and
+    ``response`` (the measured fundamental response).
     """
     from uavsim.data.preprocess import features
 
@@ -180,15 +228,15 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     cls_arr, act = predictor.predict(f.x)
     c = int(cls_arr[0])
     tab = meta["classes"]
-    K_hat = float(recover_gain(np.array([f.response]), np.array([f.response_period]), cls_arr, tab, meta["loop"])[0])
-    if not (math.isfinite(K_hat) and K_hat > 0):
+    fam = meta["loop"]
+    model = fit_response(np.array([f.response]), np.array([f.response_period]), cls_arr, tab, fam)
+    if not (np.isfinite(model["K"][0]) and model["K"][0] > 0):
         raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
-    params = {"K": K_hat}
-    for k in ("T_prop", "T1", "T2", "tau"):
-        if k in tab:
-            params[k] = float(tab[k][c])
-    gains = {"kp": float(tab["kp"][c]) / K_hat, "kd": float(tab["kd"][c]) / K_hat,
-             "derivative_filter_hz": float(tab["derivative_filter_hz"][c])}
+    rule = rule_of(meta)
+    g = model_gains(model, fam, *rule)
+    params = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "tau")}
+    gains = {k: float(g[k][0]) for k in ("kp", "kd", "derivative_filter_hz")}
+    gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), *rule)
     a = act[0].astype(np.float64)
     p = np.exp(a - a.max())
     p /= p.sum()
@@ -200,6 +248,8 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
         "oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
                         "start": f.start, "stop": f.stop},
         "softmax_top": float(p[c]),
+        "class_params": {k: float(tab[k][c]) for k in ("T_prop", "T1", "tau") if k in tab},
+        "gains_measured_point": {k: float(gm[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
         "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
                      "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
     }

@@ -309,20 +309,25 @@ def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str
 
 
 def gain_metrics(pred: np.ndarray, data: TrainData, idx: np.ndarray) -> dict[str, float]:
-    """Gain recovery error ``|K_hat / K - 1|`` (median, p95) of samples ``idx`` predicted as ``pred``.
+    """Error of the gains identification picks, ``|kp / kp_true - 1|`` and the same for kd (median, p95).
 
-    ``K_hat`` from the fundamental response and the predicted class
-    (``uavsim.learning.identify.recover_gain``); empty when the set has no
-    response (older files) or is lateral.
+    For samples ``idx`` predicted as ``pred``: the rule on the predicted class's model fitted to
+    the sample's measured response (``uavsim.learning.identify``), against the true class's
+    rule gains over the true ``K``. Empty when the set has no response (older files) or is
+    lateral.
     """
-    from uavsim.learning.identify import recover_gain
+    from uavsim.learning.identify import fit_response, model_gains, rule_of
 
     loop = data.attrs.get("loop")
     if len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude"):
         return {}
-    K_hat = recover_gain(data.response[idx], data.response_period[idx], pred, data.classes, loop)
-    e = np.abs(K_hat / data.K[idx] - 1.0)
-    return {"K_err_median": float(np.median(e)), "K_err_p95": float(np.percentile(e, 95))}
+    model = fit_response(data.response[idx], data.response_period[idx], pred, data.classes, loop)
+    g = model_gains(model, loop, *rule_of({"loop": loop, "beta": data.attrs.get("beta")}))
+    out = {}
+    for k in ("kp", "kd"):
+        e = np.abs(g[k] / (np.asarray(data.classes[k], dtype=np.float64)[data.labels[idx]] / data.K[idx]) - 1.0)
+        out.update({f"{k}_err_median": float(np.median(e)), f"{k}_err_p95": float(np.percentile(e, 95))})
+    return out
 
 
 def _split(labels: np.ndarray, frac: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -383,6 +388,19 @@ def _progress(iterable, **kw):
     return tqdm(iterable, file=sys.stderr, leave=False, dynamic_ncols=True, disable=kw.pop("quiet", False), **kw)
 
 
+def _grid_pm(attrs: dict[str, Any]) -> float | None:
+    """Phase margin (deg) of the rule of the dataset's grid, when that grid is the installed one."""
+    from uavsim.tuning.grid import load_grid
+
+    if attrs.get("loop") not in ("altitude", "attitude"):
+        return None
+    try:
+        g = load_grid(attrs["loop"])
+    except UserError:
+        return None
+    return float(g.pm_deg) if g.hash == attrs.get("grid_hash") else None
+
+
 def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[str, Any]:
     """What identification needs, stored beside the exported network."""
     a = data.attrs
@@ -397,6 +415,7 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
         "loop": a.get("loop", recipe.loop),
         "grid_hash": a.get("grid_hash", ""),
         "beta": a.get("beta"),
+        "pm_deg": _grid_pm(a),
         "h": a.get("h", 1.0),
         "rate_hz": a.get("rate_hz"),
         "channels": cfg.channels,
@@ -511,7 +530,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             stale += 1
         if not quiet:
             print(f"{recipe.name} epoch {epoch + 1}: loss {rec['loss']:.4f}  val top1 {vm['top1']:.3f}  "
-                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  K err median {vm.get('K_err_median', math.nan):.3f}  "
+                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  kp err median {vm.get('kp_err_median', math.nan):.3f}  "
                   f"({rec['elapsed_s']:.0f} s)", file=sys.stderr)
         _atomic_save({
             "fingerprint": recipe.fingerprint(), "epoch": epoch, "model": net.state_dict(), "optim": opt.state_dict(),
