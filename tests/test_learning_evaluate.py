@@ -14,6 +14,7 @@ from uavsim.learning.evaluate import (
     closed_loop_deterioration,
     evaluate_heldout,
     evaluate_offgrid,
+    nearest_class,
     pipeline_gains,
     random_processes,
     summarize_deterioration,
@@ -134,6 +135,13 @@ def test_closed_loop_criterion_against_time_domain_ise():
     assert s["unstable"] == 1 and s["median"] == pytest.approx(0.1)
 
 
+def test_nearest_class_is_the_grid_point_itself():
+    g = load_grid("altitude")
+    table = {k: np.asarray(g.params[k]) for k in ("T_prop", "T1", "tau")}
+    cls = np.array([0, 57, 207])
+    np.testing.assert_array_equal(nearest_class([g.params_of(int(c)) for c in cls], table), cls)
+
+
 def test_random_processes_are_in_the_box_and_seeded():
     a = random_processes("altitude", 50, seed=4)
     b = random_processes("altitude", 50, seed=4)
@@ -148,4 +156,7 @@ def test_heldout_and_offgrid_pipeline(three_model):  # noqa: F811 (fixture)
     res = evaluate_offgrid(model, ROOT / "datasets" / "small.toml", n=4, seed=3)
     assert res["n"] == 4 and res["n_identified"] + res["n_rejected"] == 4 and res["seed"] == 3
     assert res["deterioration"]["n"] == res["n_identified"]
+    for k in ("measured_point_rule", "oracle_class", "baseline_nearest_period"):
+        assert res[k]["n"] == res["n_identified"]
+    assert set(res["class_table_gains"]) == {"amplitude_K", "response_K"}
     assert len(CLASSES) == 3

@@ -73,7 +73,7 @@ def _model_dir(arg: str | None, tmp: Path) -> tuple[Path, bool]:
     cfg = NetConfig(2, input_length(g), g.n)
     classes = {k: np.asarray(getattr(g, k)).tolist() for k in ("kp", "kd", "derivative_filter_hz", "amplitude")}
     classes.update({k: np.asarray(g.params[k]).tolist() for k in ("T_prop", "T1", "tau")})
-    meta = {"loop": "altitude", "grid_hash": g.hash, "beta": g.beta, "channels": 2, "input_length": cfg.input_length,
+    meta = {"loop": "altitude", "grid_hash": g.hash, "beta": g.beta, "pm_deg": g.pm_deg, "channels": 2, "input_length": cfg.input_length,
             "n_classes": g.n, "cycles": 1, "classes": classes}
     export_model(IdentNet(cfg).eval(), meta, tmp)
     return tmp, False

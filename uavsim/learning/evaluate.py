@@ -152,6 +152,17 @@ def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
             "max": float(np.max(det)), "unstable": int(np.sum(~np.isfinite(det)))}
 
 
+def nearest_class(params: list[LumpedParams], table: dict[str, Any]) -> np.ndarray:
+    """Per process, the class nearest to it in the log parameter box (each axis scaled to [0, 1]), (m,)."""
+    fam = params[0].family
+    keys = ("T_prop", "T1", "tau")
+    lo = np.log([RANGES[fam][k][0] for k in keys])
+    hi = np.log([RANGES[fam][k][1] for k in keys])
+    P = (np.log([[getattr(p, k) for k in keys] for p in params]) - lo) / (hi - lo)
+    C = (np.log(np.column_stack([np.asarray(table[k], dtype=np.float64) for k in keys])) - lo) / (hi - lo)
+    return np.argmin(((P[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
+
+
 def _rel_err(K_hat: np.ndarray, K: np.ndarray) -> dict[str, float]:
     """Median and p95 of ``|K_hat / K - 1|`` (empty without data)."""
     if not len(K):
@@ -181,7 +192,8 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     class is the one of nearest exact period), ``class_table_gains`` (deterioration and
     errors of the class's tabulated gains over ``K_hat`` from the amplitude, ``amplitude_K``, or
     from the response, ``response_K``, with the network's classes), ``measured_point_rule``
-    (deterioration of ``measured_point_gains``: no network, no model), ``wall_s``.
+    (deterioration of ``measured_point_gains``: no network, no model), ``oracle_class``
+    (the pipeline with the grid class nearest to the truth: what a perfect classifier gives), ``wall_s``.
     """
     from uavsim.data.generate import simulate_features
     from uavsim.data.recipe import load_recipe
@@ -241,6 +253,9 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
     gb = pipeline_gains(near, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     det_base = closed_loop_deterioration(used, gb["kp"], gb["kd"], gb["N"], grid.beta, grid.pm_deg)["deterioration"]
+    # same run, an oracle classifier: the class nearest to the true process in the log box
+    go = pipeline_gains(nearest_class(used, table), resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
+    det_or = closed_loop_deterioration(used, go["kp"], go["kd"], go["N"], grid.beta, grid.pm_deg)["deterioration"]
     # same run, no network and no model: the rule's constants at the measured point
     gm = measured_point_gains(resp[idx], rper[idx], grid.beta, grid.pm_deg)
     det_mp = closed_loop_deterioration(used, gm["kp"], gm["kd"], gm["N"], grid.beta, grid.pm_deg)["deterioration"]
@@ -257,6 +272,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         "baseline_nearest_period": summarize_deterioration(det_base),
         "class_table_gains": lookups,
         "measured_point_rule": summarize_deterioration(det_mp),
+        "oracle_class": summarize_deterioration(det_or),
         "J": {"mean": float(np.mean(jsel)), "p95": float(np.percentile(jsel, 95))} if jsel.size else {},
         "K_rel_err": _rel_err(g["K_hat"], K_true),
         "kp_rel_err": _rel_err(g["kp"], cl["kp_rule"]),

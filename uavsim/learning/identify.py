@@ -38,6 +38,7 @@ error (``NoOscillation``, a ``UserError``), never a guess.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from dataclasses import replace
@@ -175,10 +176,16 @@ def rule_of(meta: dict[str, Any]) -> tuple[float, float]:
     """``(beta, pm_deg)`` of the grid a network was trained on (older exports lack ``pm_deg``: the grid's)."""
     if meta.get("pm_deg") is not None and meta.get("beta") is not None:
         return float(meta["beta"]), float(meta["pm_deg"])
+    beta, pm = _grid_rule(meta["loop"])
+    return float(meta["beta"]) if meta.get("beta") is not None else beta, pm
+
+
+@functools.lru_cache(maxsize=4)
+def _grid_rule(loop: str) -> tuple[float, float]:
     from uavsim.tuning.grid import load_grid
 
-    g = load_grid(meta["loop"])
-    return float(meta.get("beta", g.beta)), float(g.pm_deg)
+    g = load_grid(loop)
+    return float(g.beta), float(g.pm_deg)
 
 
 def _check_not_saturated(y: np.ndarray) -> None:
