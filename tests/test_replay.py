@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _rerun_cli import iso_seconds, rerun
 
 from uavsim.control.relay import NPMRFT
 from uavsim.errors import UserError
@@ -28,8 +27,6 @@ from uavsim.viz.replay import phase_portrait, replay_session, sign_changes
 
 RATE = 200.0
 TAU_OBS = 0.02
-RERUN = Path(sys.executable).with_name("rerun")
-ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
 
 
 @pytest.fixture(scope="module")
@@ -56,31 +53,15 @@ def replayed(session_dir: Path, tmp_path_factory) -> tuple[dict, Path]:
     return replay_session(session_dir, rrd), rrd
 
 
-def _rerun(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [str(RERUN), *args], capture_output=True, text=True, env=ENV, timeout=60, check=False
-    )
-
-
-_ISO = re.compile(r"^P(?:T(?:(\d+)H)?(?:(\d+)M)?(?:([\d.]+)S)?|0D)$")
-
-
-def _iso_seconds(text: str) -> float:
-    m = _ISO.match(text)
-    assert m, text
-    h, mi, s = (float(g) if g else 0.0 for g in m.groups())
-    return 3600.0 * h + 60.0 * mi + s
-
-
 def _read_scalars(rrd: Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
     """(time s, value) rows of a scalar entity, as printed by ``rerun rrd print -vvv``."""
-    out = _rerun("rrd", "print", "-vvv", "--entity", entity, str(rrd))
+    out = rerun("rrd", "print", "-vvv", "--entity", entity, str(rrd))
     assert out.returncode == 0, out.stderr
     t, v = [], []
     for line in out.stdout.splitlines():
         cells = [c.strip(" │") for c in line.split("┆")]
         if len(cells) == 3 and cells[0].startswith("row_") and cells[1].startswith("P"):
-            t.append(_iso_seconds(cells[1]))
+            t.append(iso_seconds(cells[1]))
             v.append(float(cells[2].strip("[]")))
     return np.array(t), np.array(v)
 
@@ -118,9 +99,9 @@ def test_summary_recomputes_relay(replayed) -> None:
 
 def test_rrd_verify_and_entities(replayed) -> None:
     summary, rrd = replayed
-    verify = _rerun("rrd", "verify", str(rrd))
+    verify = rerun("rrd", "verify", str(rrd))
     assert verify.returncode == 0, verify.stderr
-    printed = _rerun("rrd", "print", str(rrd))
+    printed = rerun("rrd", "print", str(rrd))
     assert printed.returncode == 0, printed.stderr
     for info in summary["runs"]:
         for path, rows in info["entities"].items():
@@ -226,4 +207,4 @@ def test_step_run_has_no_relay_entities(session_dir: Path, tmp_path: Path) -> No
     info = summary["runs"][0]
     assert info["kind"] == "step" and "u_mismatch" not in info
     assert "runs/step/extrema" not in info["entities"] and info["entities"]["runs/step/y"] == 1600
-    assert _rerun("rrd", "verify", str(tmp_path / "step.rrd")).returncode == 0
+    assert rerun("rrd", "verify", str(tmp_path / "step.rrd")).returncode == 0

@@ -11,17 +11,15 @@ nothing else, the body quaternion is MuJoCo's, user errors are one line.
 from __future__ import annotations
 
 import json
-import os
 import re
 import shutil
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
+from _rerun_cli import iso_seconds, rerun
 
 from uavsim.data.generate import generate
 from uavsim.data.h5 import open_dataset
@@ -30,35 +28,17 @@ from uavsim.errors import UserError
 from uavsim.viz.replay import replay
 
 ROOT = Path(__file__).resolve().parents[1]
-RERUN = Path(sys.executable).with_name("rerun")
-ENV = {**os.environ, "RERUN_ANALYTICS": "0"}
-
-
-def _rerun(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [str(RERUN), *args], capture_output=True, text=True, env=ENV, timeout=60, check=False
-    )
-
-
-_ISO = re.compile(r"^P(?:T(?:(\d+)H)?(?:(\d+)M)?(?:([\d.]+)S)?|0D)$")
-
-
-def _iso_seconds(text: str) -> float:
-    m = _ISO.match(text)
-    assert m, text
-    h, mi, s = (float(g) if g else 0.0 for g in m.groups())
-    return 3600.0 * h + 60.0 * mi + s
 
 
 def _read_rows(rrd: Path, entity: str) -> tuple[np.ndarray, list[list[str]]]:
     """(time s, the other cells) of the temporal rows of ``entity``, from ``rerun rrd print -vvv``."""
-    out = _rerun("rrd", "print", "-vvv", "--entity", entity, str(rrd))
+    out = rerun("rrd", "print", "-vvv", "--entity", entity, str(rrd))
     assert out.returncode == 0, out.stderr
     t, cells = [], []
     for line in out.stdout.splitlines():
         c = [x.strip(" │") for x in line.split("┆")]
         if len(c) >= 3 and c[0].startswith("row_") and c[1].startswith("P"):
-            t.append(_iso_seconds(c[1]))
+            t.append(iso_seconds(c[1]))
             cells.append(c[2:])
     return np.array(t), cells
 
@@ -120,8 +100,8 @@ def test_dataset_summary_and_exact_resimulation(ds_replayed, tiny_h5: Path) -> N
 
 def test_dataset_rrd_against_the_file(ds_replayed, tiny_h5: Path) -> None:
     s, rrd = ds_replayed
-    assert _rerun("rrd", "verify", str(rrd)).returncode == 0
-    printed = _rerun("rrd", "print", str(rrd))
+    assert rerun("rrd", "verify", str(rrd)).returncode == 0
+    printed = rerun("rrd", "print", str(rrd))
     assert printed.returncode == 0, printed.stderr
     ds = open_dataset(tiny_h5)
     row = s["row"]
@@ -155,7 +135,7 @@ def test_dataset_without_resimulation_replays_the_raw_traces(tiny_h5: Path, tmp_
     assert not s["resimulated"] and not info["vehicle"] and f"runs/{info['stem']}/y_true" not in info["entities"]
     assert any("no exact re-simulation" in m for m in info["messages"])
     assert info["rows"] == int(open_dataset(tiny_h5).raw["length"][s["row"]])
-    assert _rerun("rrd", "verify", str(tmp_path / "raw.rrd")).returncode == 0
+    assert rerun("rrd", "verify", str(tmp_path / "raw.rrd")).returncode == 0
 
 
 @pytest.fixture
@@ -241,8 +221,8 @@ def test_scenario_replay_against_the_run(scenario_run, tmp_path: Path) -> None:
     s = replay(rrd, out)
     assert s["source"] == "scenario" and s["run_file"] == str(run_path(rrd))
     assert [r["label"] for r in s["runs"]] == list(res["_episodes"])
-    assert _rerun("rrd", "verify", str(out)).returncode == 0
-    printed = _rerun("rrd", "print", str(out)).stdout
+    assert rerun("rrd", "verify", str(out)).returncode == 0
+    printed = rerun("rrd", "print", str(out)).stdout
     run = read_run(run_path(rrd))
     for info in s["runs"]:
         ep = run["episodes"][info["label"]]

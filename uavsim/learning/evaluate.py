@@ -209,19 +209,13 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         raise UserError(f"{model_dir}: trained on another {meta['loop']} grid than the current one")
     table = meta["classes"]
     params = random_processes(meta["loop"], n, seed, K)
-    Xs, amps, oks, levels, pers, resps, rpers = [], [], [], [], [], [], []
+    parts = []
     for i in range(0, n, chunk):
         X, per, amp, ok, m = simulate_features(params[i : i + chunk], recipe, seed + 1 + i // chunk)
-        Xs.append(X)
-        pers.append(per)
-        amps.append(amp)
-        oks.append(ok)
-        levels.append(m["noise_level"])
-        resps.append(m["response"])
-        rpers.append(m["response_period"])
+        parts.append((X, per, amp, ok, m["noise_level"], m["response"], m["response_period"]))
         if progress:
             print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    X, amp, ok, level, period, resp, rper = (np.concatenate(v) for v in (Xs, amps, oks, levels, pers, resps, rpers))
+    X, period, amp, ok, level, resp, rper = (np.concatenate(v) for v in zip(*parts, strict=True))
     idx = np.flatnonzero(ok)
     cls, _ = pred.predict(X[idx])
     h = recipe.test.h
