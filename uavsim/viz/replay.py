@@ -283,7 +283,7 @@ def _log_run(rec: Any, run: ReplayRun) -> dict[str, Any]:
     rec.log(
         f"{base}/switches",
         rr.SeriesPoints(
-            names="switches (u changes sign)", colors=[0, 0, 0], markers="Cross", marker_sizes=4.0
+            names="switches (u changes sign)", colors=[230, 230, 230], markers="Cross", marker_sizes=4.0
         ),
         static=True,
     )
