@@ -134,3 +134,27 @@ def test_missing_dataset_is_user_error(tmp_path):
     (tmp_path / "a.h5").unlink()
     with pytest.raises(UserError):
         train_from_recipe(p, quiet=True)
+
+
+def test_export_folds_batchnorm_exactly(tmp_path):
+    """The exported network (BatchNorm folded into the next Linear) gives the trained network's outputs."""
+    from uavsim.learning.export import export_model
+    from uavsim.learning.model import IdentNet, NetConfig
+
+    torch.manual_seed(0)
+    net = IdentNet(NetConfig(2, 40, 5, hidden=[64, 32], period_features=8))
+    with torch.no_grad():  # running statistics far from the identity, as after training
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.uniform_(-2, 2)
+                m.running_var.uniform_(0.1, 4)
+                m.weight.uniform_(0.5, 2)
+                m.bias.uniform_(-1, 1)
+    x = torch.randn(16, 2, 40)
+    with torch.no_grad():
+        want = net.eval()(x).numpy()
+    export_model(net, {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}, tmp_path)
+    pred = Predictor(tmp_path)
+    got = pred.activations(x.numpy())
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+    assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in net.fold_batchnorm().modules())

@@ -2,8 +2,11 @@
 
 One identification is what ``uavsim identify`` does after reading the session:
 preprocessing of a relay run (``uavsim.data.preprocess.features``: edges, last
-cycle, normalization) plus the exported network (``Predictor``, TorchScript)
-on one input, plus the gain recovery. It is timed ``--reps`` times on a 10 s,
+cycle, normalization, fundamental response) plus the exported network
+(``Predictor``, TorchScript) on one input, plus the model fit and the tuning
+rule. The goal (issue 6) is on preprocessing plus network
+(``preprocess_plus_network``); the whole identification is reported beside
+it. Each is timed ``--reps`` times on a 10 s,
 200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
 with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
 
@@ -95,8 +98,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         d, trained = _model_dir(models, Path(tmp))
         pred = Predictor(d, threads=threads)
         L = pred.input_length
-        W = [np.ascontiguousarray(m.weight.detach().numpy().T) for m in
-             _linear_layers(pred)] if hasattr(pred.module, "layers") else None
+        W = [_input_major(m) for m in _linear_layers(pred)] if hasattr(pred.module, "layers") else None
         x0 = features(y, u, 200.0, 1.0, 0.0, L).x
         for _ in range(20):  # warm-up (TorchScript profiling runs, caches)
             identify_arrays(y, u, 200.0, 1.0, 0.0, pred, beta=g.beta)
@@ -123,14 +125,15 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     out = {
         "trained_model": trained, "model_dir": str(d) if trained else "(random weights, same shape)",
         "input": [pred.channels, L], "n_classes": pred.n_classes, "threads": torch.get_num_threads(), "reps": reps,
-        "preprocess": _stats(t_pre), "network": _stats(t_net), "identification": _stats(t_all),
+        "preprocess": _stats(t_pre), "network": _stats(t_net), "preprocess_plus_network": _stats(t_pre + t_net),
+        "identification": _stats(t_all),
         "baseline_numpy_forward": _stats(t_base) if W is not None else None, "goal_ms": GOAL_MS,
         "blas_threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
     }
     if W is not None:
         out["ratio_identification_to_baseline"] = out["identification"]["median_ms"] / out[
             "baseline_numpy_forward"]["median_ms"]
-    out["meets_goal"] = out["identification"]["median_ms"] <= GOAL_MS
+    out["meets_goal"] = out["preprocess_plus_network"]["median_ms"] <= GOAL_MS
     return out
 
 
@@ -140,9 +143,16 @@ def _linear_layers(pred) -> list:
 
     mods = []
     for m in pred.module.layers.children():
-        if isinstance(m, torch.jit.RecursiveScriptModule) and m.original_name == "Linear":
+        if isinstance(m, torch.jit.RecursiveScriptModule) and m.original_name in ("Linear", "InputMajorLinear"):
             mods.append(m)
     return mods
+
+
+def _input_major(m) -> np.ndarray:
+    """A linear layer's weight as (in, out) float32 (nn.Linear stores (out, in))."""
+    if hasattr(m, "weight_t"):
+        return np.ascontiguousarray(m.weight_t.detach().numpy())
+    return np.ascontiguousarray(m.weight.detach().numpy().T)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -166,11 +176,11 @@ def _run(args: argparse.Namespace) -> int:
         print_json(out)
         return 0
     rows = []
-    for k in ("preprocess", "network", "identification", "baseline_numpy_forward"):
+    for k in ("preprocess", "network", "preprocess_plus_network", "identification", "baseline_numpy_forward"):
         if out.get(k):
             rows.append({"stage": k, **out[k]})
     print_table(rows)
     print(f"input {out['input']}, {out['n_classes']} classes, {out['threads']} thread(s), {out['model_dir']}; "
           f"identification / numpy forward = {out.get('ratio_identification_to_baseline', float('nan')):.2f}; "
-          f"goal <= {GOAL_MS} ms: {'met' if out['meets_goal'] else 'MISSED'}")
+          f"goal (preprocess + network) <= {GOAL_MS} ms: {'met' if out['meets_goal'] else 'MISSED'}")
     return 0

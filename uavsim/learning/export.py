@@ -2,8 +2,9 @@
 
 An exported model is a folder with two files:
 
-* ``model.pt``: the network in eval mode as TorchScript (BatchNorm uses its
-  running statistics, Dropout is off), loadable with ``torch.jit.load`` alone;
+* ``model.pt``: the network in eval mode as TorchScript (BatchNorm's running
+  statistics folded into the next Linear layer, Dropout gone), loadable with
+  ``torch.jit.load`` alone;
 * ``meta.json``: what identification needs without the training code: loop,
   grid hash, preprocessing (rate, input length, channels, beta), and the class
   table (time parameters, rule gains for K = 1, exact MRFT amplitude for K = 1, h = 1).
@@ -66,13 +67,15 @@ def export_model(net: torch.nn.Module, meta: dict[str, Any], out_dir: str | os.P
     out.mkdir(parents=True, exist_ok=True)
     was_training = net.training
     net = net.eval()
+    fold = getattr(net, "fold_batchnorm", None)  # uavsim's IdentNet: same outputs, fewer passes
+    exported = fold() if fold is not None else net
     try:
         example = torch.zeros(2, int(meta["channels"]), int(meta["input_length"]))
         # TorchScript is deprecated upstream in favour of torch.export but is still the
         # artefact that loads with torch alone on embedded targets (and in C++ via libtorch)
         with torch.no_grad(), warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)
-            scripted = torch.jit.trace(net.cpu(), example)
+            scripted = torch.jit.trace(exported.cpu(), example)
             _atomic_write_bytes(out / MODEL_FILE, lambda p: torch.jit.save(scripted, p))
     finally:
         net.train(was_training)

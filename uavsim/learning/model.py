@@ -14,13 +14,31 @@ applied only in training, and the predicted class is ``argmax a``.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import asdict, dataclass, field
 
 import torch
 from torch import nn
 
-__all__ = ["NetConfig", "IdentNet"]
+__all__ = ["NetConfig", "IdentNet", "InputMajorLinear"]
+
+
+class InputMajorLinear(nn.Module):
+    """``x W^T + b`` with ``W`` stored transposed, (in, out): for one input row at a time
+    (identification) torch's matmul on this layout runs about twice as fast as ``nn.Linear``
+    on one CPU thread (measured with ``uavsim bench infer``).
+
+    ``weight_t`` (in_features, out_features), ``bias`` (out_features,).
+    """
+
+    def __init__(self, weight_t: torch.Tensor, bias: torch.Tensor):
+        super().__init__()
+        self.weight_t = nn.Parameter(weight_t.contiguous(), requires_grad=False)
+        self.bias = nn.Parameter(bias.clone(), requires_grad=False)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.addmm(self.bias, x, self.weight_t)
 
 
 @dataclass
@@ -81,6 +99,36 @@ class IdentNet(nn.Module):
         lo, hi = (math.log(p * 200.0) for p in cfg.period_range_s)
         self.register_buffer("centres", torch.linspace(lo, hi, k))
         self.width = (hi - lo) / max(k - 1, 1)
+
+    @torch.no_grad()
+    def fold_batchnorm(self) -> IdentNet:
+        """An inference copy: each BatchNorm folded into the next Linear, Dropout dropped.
+
+        In eval mode a BatchNorm is the affine map ``z = a x + s`` per feature
+        (``a = gamma / sqrt(var + eps)``, ``s = beta - mean a``), so the Linear
+        after it takes ``W diag(a)`` and ``b + W s``: the same outputs (up to
+        rounding) with two fewer passes over the hidden activations. The linear
+        layers become ``InputMajorLinear``. This is what the exported network runs.
+        """
+        layers: list[nn.Module] = []
+        pending: tuple[torch.Tensor, torch.Tensor] | None = None
+        for m in self.layers:
+            if isinstance(m, nn.BatchNorm1d):
+                a = m.weight / torch.sqrt(m.running_var + m.eps)
+                pending = (a, m.bias - m.running_mean * a)
+            elif isinstance(m, nn.Linear):
+                W, b = m.weight.clone(), m.bias.clone()
+                if pending is not None:
+                    b, W = b + W @ pending[1], W * pending[0][None, :]
+                    pending = None
+                layers.append(InputMajorLinear(W.T, b))
+            elif not isinstance(m, nn.Dropout):
+                layers.append(copy.deepcopy(m))
+        if pending is not None:
+            raise ValueError("a BatchNorm after the last Linear cannot be folded")
+        folded = copy.deepcopy(self)
+        folded.layers = nn.Sequential(*layers)
+        return folded.eval()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         flat = x.flatten(1)
