@@ -114,10 +114,14 @@ def test_none_on_clean_session():
 
 @pytest.mark.slow
 def test_hidden_effect_suite():
-    """The issue's goals on 24 hidden-effect sessions (``uavsim bench gap`` runs 60)."""
+    """The issue's goals on 60 hidden-effect sessions of their own (seeds 1000-1059; about 10 min).
+
+    Fewer sessions make a statistical check of a 90% goal a coin toss: the
+    first 24 of these name 21 (87.5%), all 60 name 56 (93.3%).
+    """
     from uavsim.bench.gap import one, summarize
 
-    s = summarize([one(1000 + i) for i in range(24)])
+    s = summarize([one(1000 + i) for i in range(60)])
     assert s["named_correctly"] >= 0.9
     assert s["none_on_none"] in (None, 1.0)
     assert s["param_within_30pct"] is None or s["param_within_30pct"] >= 0.8
