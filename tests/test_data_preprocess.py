@@ -110,3 +110,22 @@ def test_input_length_covers_grid():
     L = input_length(g)
     assert L % 8 == 0 and L >= 1.25 * g.period.max() * INPUT_RATE_HZ
     assert L < 1.25 * g.period.max() * INPUT_RATE_HZ + 8
+
+
+def test_waveform_harmonics_of_a_known_signal():
+    """Harmonics at a non-integer period (37.3 samples) under a DC offset and a drift, against
+    the amplitudes the signal was built from; a per-cycle DFT over whole samples leaks."""
+    from uavsim.data.preprocess import waveform_harmonics
+    from uavsim.noise.analysis import cycle_harmonics
+
+    N, cycles = 37.3, 5
+    n = np.arange(int(N * (cycles + 1)))
+    true = np.array([1.0, 0.0, 0.03 * np.exp(-1.1j), 0.0, 0.01 * np.exp(2.0j), 0.0, 0.004j])
+    x = 0.7 + 0.002 * n + sum((X * np.exp(2j * np.pi * (k + 1) * n / N)).real * 2 for k, X in enumerate(true))
+    start, stop = 10, 10 + int(round(N * cycles))
+    hx2, hu = waveform_harmonics(np.stack([x, -x]), start, stop, N)
+    np.testing.assert_allclose(hx2, true, atol=1e-9)
+    np.testing.assert_allclose(hu, -true, atol=1e-9)
+    edges = np.round(start + N * np.arange(cycles + 1)).astype(int)
+    leak = cycle_harmonics(x, edges, (3,))[0]
+    assert abs(leak - true[2]) > 0.1 * abs(true[2])

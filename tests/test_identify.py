@@ -146,3 +146,34 @@ def test_cli_json_and_errors(setup, tmp_path):
                          text=True, cwd=ROOT)
     assert res.returncode == 2 and res.stdout == "" and "Traceback" not in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_select_class_finds_the_lags_from_the_harmonics():
+    """On exact lumped relay cycles (an independent simulator) of 12 altitude grid classes, the
+    class whose fitted model explains harmonics 2..7 best is the true one among all 208, and
+    ``select_class`` finds it from a ranking that puts it anywhere in its first ``SELECT_TOP``."""
+    from uavsim.data.preprocess import features, input_length
+    from uavsim.learning.identify import SELECT_TOP, select_class, waveform_scores
+    from uavsim.lumped.simulate import simulate_relay_batch
+    from uavsim.tuning.grid import load_grid
+
+    g = load_grid("altitude")
+    tab = {**{k: np.asarray(g.params[k]) for k in ("T_prop", "T1", "tau")}, "period": g.period}
+    cs = np.random.default_rng(3).choice(g.n, 12, replace=False)
+    n = int(8 * g.period[cs].max() / 0.005)
+    r = simulate_relay_batch("altitude", g.beta, 1.0, 0.005, n, K=np.full(len(cs), 1.7), T_prop=tab["T_prop"][cs],
+                             T1=tab["T1"][cs], tau=tab["tau"][cs])
+    ranks = []
+    for j, c in enumerate(cs):
+        f = features(-r["e"][j], r["u"][j], 200.0, 1.0, 0.0, input_length(g))
+        args = (np.array([f.response]), np.array([f.response_period]), f.harmonics_y[None], f.harmonics_u[None], tab,
+                "altitude")
+        ws = waveform_scores(np.arange(g.n)[None], *args)[0]
+        assert np.argmin(ws) == c
+        # a stand-in network that ranks classes by period alone
+        net = -np.abs(np.log(tab["period"]) - np.log(f.period))
+        rank = int(np.flatnonzero(np.argsort(-net, kind="stable") == c)[0])
+        if rank < SELECT_TOP:
+            assert select_class(net[None], *args)[0] == c
+        ranks.append(rank)
+    assert max(ranks) >= 10 and sum(0 < k < SELECT_TOP for k in ranks) >= 8  # the ranking alone was wrong

@@ -653,7 +653,8 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     X : (n, C, L) float32, period : (n,) s, amplitude : (n,) output units, ok : (n,) bool,
     meta : dict of per-episode draws (``K, bias, noise_kind, noise_level, y0, tau_obs, a_n``,
     (n,) arrays), ``noise_kinds``, ``diverged`` (n,), ``seed``, ``duration_s``, ``response``
-    (n,) complex and ``response_period`` (n,) s (the fundamental response, ``preprocess.CycleFeatures``).
+    (n,) complex and ``response_period`` (n,) s (the fundamental response), ``harmonics_y``,
+    ``harmonics_u`` (n, HARMONICS) complex (``preprocess.CycleFeatures``).
     """
     if not params:
         raise UserError("simulate_features needs at least one process")
@@ -686,6 +687,7 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     meta = {"K": K, "bias": bias, "noise_kind": kind, "noise_kinds": list(recipe.noise.kinds), "noise_level": level,
             "y0": y0, "tau_obs": tau_obs, "a_n": plan.a_n, "diverged": res["diverged"], "seed": seed,
             "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
-            "response": res["response"], "response_period": res["response_period"]}
+            "response": res["response"], "response_period": res["response_period"],
+            "harmonics_y": res["harmonics_y"], "harmonics_u": res["harmonics_u"]}
     return res["X"], res["period"], res["amplitude"], res["ok"], meta
 

@@ -65,6 +65,8 @@ _STEADY_TOL = 0.25
 MIN_CYCLE_SAMPLES = 8
 #: most cycles the fundamental response is averaged over (the last ones, the first is never used)
 RESPONSE_CYCLES = 4
+#: harmonics of the cycle's waveform measured over the same cycles (1 = the fundamental)
+HARMONICS = 7
 
 
 class NoOscillation(UserError):
@@ -93,6 +95,12 @@ class CycleFeatures:
     response_period : float
         Mean period of those cycles, s (the frequency of ``response`` is ``2 pi / response_period``).
     response_cycles : int
+    harmonics_y, harmonics_u : (HARMONICS,) complex
+        Harmonics 1..HARMONICS of ``y`` (output units) and of the normalized command
+        ``(u - bias) / h`` over the same cycles (``waveform_harmonics``). A relay's square
+        command excites the loop at ``k w`` too, so the response at several frequencies comes
+        for free: it tells delay (phase growing with frequency) from lag (phase levelling off),
+        which the cycle's shape alone barely does (``uavsim.learning.identify.select_class``).
     """
 
     x: np.ndarray
@@ -104,6 +112,8 @@ class CycleFeatures:
     response: complex = complex("nan")
     response_period: float = float("nan")
     response_cycles: int = 0
+    harmonics_y: np.ndarray | None = None
+    harmonics_u: np.ndarray | None = None
 
 
 def input_length(grid, margin: float = LENGTH_MARGIN) -> int:
@@ -135,6 +145,40 @@ def _resample(y: np.ndarray, u: np.ndarray, rate_hz: float) -> tuple[np.ndarray,
     # zero-order hold: the command in force at t_out is the last one computed at or before it
     idx = np.clip(np.floor(t_out * rate_hz + 1e-9).astype(np.int64), 0, T - 1)
     return yr, u[idx]
+
+
+def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
+                       orders: int = HARMONICS) -> tuple[np.ndarray, ...]:
+    """Harmonics 1..``orders`` of signals over ``[start, stop)`` at one common (non-integer) period.
+
+    A least-squares fit of ``c0 + c1 t + sum_k (a_k cos(k w n) + b_k sin(k w n))``,
+    ``w = 2 pi / period``; the harmonic is ``X_k = (a_k - j b_k) / 2`` (the DFT convention of
+    ``cycle_harmonics``). Why not ``cycle_harmonics``: a cycle of a sampled loop lasts a
+    non-integer number of samples, and a DFT over each cycle's whole samples leaks about
+    ``1 / N`` of the fundamental into every other bin, as much as a well-damped third
+    harmonic holds; the trend term takes up what is left of the transient's drift.
+
+    Parameters
+    ----------
+    x : (S, T) signals (or (T,))
+    start, stop : sample indices of whole cycles
+    period : float, samples per cycle (mean over the cycles)
+    orders : highest harmonic
+
+    Returns
+    -------
+    One (orders,) complex array per signal.
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    n = np.arange(start, stop, dtype=np.float64)
+    t = (n - n.mean()) / max(len(n), 1)
+    z = np.cumprod(np.broadcast_to(np.exp(1j * (2.0 * np.pi / period) * n)[:, None], (len(n), orders)), axis=1)
+    A = np.column_stack([np.ones_like(n), t, z.real, z.imag])  # z[:, k-1] = exp(j k w n)
+    # normal equations: the columns are near-orthogonal over whole cycles, and a (2H+2)^2 solve
+    # is several times faster than an SVD of the (samples, 2H+2) matrix (identification latency)
+    c = np.linalg.solve(A.T @ A, A.T @ x[:, start:stop].T)
+    X = 0.5 * (c[2 : 2 + orders] - 1j * c[2 + orders :])
+    return tuple(X[:, i] for i in range(x.shape[0]))
 
 
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
@@ -218,10 +262,11 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         lens = lens[1:]
     re = edges[-1 - m:]
     yh, uh = cycle_harmonics(y, re)[0], cycle_harmonics(s, re)[0]
+    hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
                          start=int(round(start * scale)), stop=int(round(stop * scale)),
                          response=complex(yh / (h * uh)), response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
-                         response_cycles=int(m))
+                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu)
 
 
 def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, bias: np.ndarray, L: int, *,
@@ -236,8 +281,8 @@ def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, 
     L : int
     cycles : int
     response : dict, optional
-        When given, filled with ``response`` (n,) complex and ``response_period`` (n,) s
-        (``CycleFeatures``; NaN where not ok).
+        When given, filled with ``response`` (n,) complex, ``response_period`` (n,) s and
+        ``harmonics_y``, ``harmonics_u`` (n, HARMONICS) complex (``CycleFeatures``; NaN where not ok).
 
     Returns
     -------
@@ -257,13 +302,15 @@ def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, 
     ok = np.zeros(n, dtype=bool)
     resp = np.full(n, complex("nan"))
     resp_period = np.full(n, np.nan)
+    hy = np.full((n, HARMONICS), complex("nan"))
+    hu = np.full((n, HARMONICS), complex("nan"))
     for i in range(n):
         try:
             f = features(Y[i], U[i], rate_hz, float(h[i]), float(bias[i]), L, cycles=cycles)
         except NoOscillation:
             continue
         X[i], period[i], amplitude[i], ok[i] = f.x, f.period, f.amplitude, True
-        resp[i], resp_period[i] = f.response, f.response_period
+        resp[i], resp_period[i], hy[i], hu[i] = f.response, f.response_period, f.harmonics_y, f.harmonics_u
     if response is not None:
-        response.update(response=resp, response_period=resp_period)
+        response.update(response=resp, response_period=resp_period, harmonics_y=hy, harmonics_u=hu)
     return X, period, amplitude, ok

@@ -8,7 +8,7 @@ Three views, from the cheapest to the one that matters:
   box (not grid points), simulated in MuJoCo through the dataset path
   (``uavsim.data.generate.simulate_features``: same relay, noise, preprocessing);
 * **closed-loop criterion**: the gains the pipeline picks (the rule on the
-  class's model fitted to the measured response) against the tuning rule applied to the *true*
+  model of the class ``select_class`` picks, fitted to the measured response) against the tuning rule applied to the *true*
   process: ISE deterioration ``Q(picked, G) / Q(rule(G), G) - 1`` of a unit step
   (``uavsim.lumped.ise.step_ise_batch``, exact delays); an unstable loop is
   ``inf`` and counted. This includes the gain-recovery error, which the
@@ -35,7 +35,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
-from uavsim.learning.identify import fit_response, measured_point_gains, model_gains
+from uavsim.learning.identify import fit_response, measured_point_gains, model_gains, select_class
 from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
 
@@ -184,7 +184,9 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     Returns
     -------
     dict: ``n``, ``n_rejected`` (no usable oscillation: not identified), ``seed``,
-    ``deterioration`` (``summarize_deterioration``), ``J`` (normalized J of the predicted class:
+    ``deterioration`` (``summarize_deterioration``; classes by ``select_class`` as identification
+    does), ``network_first_choice`` (the same with the network's argmax class),
+    ``selection_changed`` (fraction where they differ), ``J`` (normalized J of the predicted class:
     mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|; not a measure of the gains by
     itself: classes of one Omega level differ in gain normalization), ``kp_rel_err``,
     ``kd_rel_err`` (against the rule's gains for the true process), ``by_noise`` (median
@@ -212,14 +214,16 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     parts = []
     for i in range(0, n, chunk):
         X, per, amp, ok, m = simulate_features(params[i : i + chunk], recipe, seed + 1 + i // chunk)
-        parts.append((X, per, amp, ok, m["noise_level"], m["response"], m["response_period"]))
+        parts.append((X, per, amp, ok, m["noise_level"], m["response"], m["response_period"], m["harmonics_y"],
+                      m["harmonics_u"]))
         if progress:
             print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    X, period, amp, ok, level, resp, rper = (np.concatenate(v) for v in zip(*parts, strict=True))
+    X, period, amp, ok, level, resp, rper, hy, hu = (np.concatenate(v) for v in zip(*parts, strict=True))
     idx = np.flatnonzero(ok)
-    cls, _ = pred.predict(X[idx])
     h = recipe.test.h
     fam = meta["loop"]
+    net_cls, act = pred.predict(X[idx])
+    cls = select_class(act, resp[idx], rper[idx], hy[idx], hu[idx], table, fam)
     g = pipeline_gains(cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     used = [params[i] for i in idx]
     cl = closed_loop_deterioration(used, g["kp"], g["kd"], g["N"], grid.beta, grid.pm_deg)
@@ -243,6 +247,9 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     Jpc = deterioration(grid.loop, w_pt, grid.omega_df[gi], grid.c1, grid.c3, **pa)  # (n_classes, m)
     jsel = Jpc[cls, np.arange(len(idx))]
     det = cl["deterioration"]
+    # same run, the network's first choice with no harmonic selection
+    gn = pipeline_gains(net_cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
+    det_net = closed_loop_deterioration(used, gn["kp"], gn["kd"], gn["N"], grid.beta, grid.pm_deg)["deterioration"]
     # same-run baseline: the class of nearest exact period, fitted the same way (what a network must beat)
     near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
     gb = pipeline_gains(near, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
@@ -263,6 +270,8 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         "n_rejected": int(n - idx.size), "seed": seed, "K_range": list(K),
         "noise_level_max": float(np.max(level)) if level.size else 0.0,
         "deterioration": summarize_deterioration(det),
+        "network_first_choice": summarize_deterioration(det_net),
+        "selection_changed": float(np.mean(cls != net_cls)) if idx.size else 0.0,
         "baseline_nearest_period": summarize_deterioration(det_base),
         "class_table_gains": lookups,
         "measured_point_rule": summarize_deterioration(det_mp),
