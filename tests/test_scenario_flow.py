@@ -139,3 +139,19 @@ def test_disturbance_scenarios():
     ts = run_scenario(load_scenario(SCEN / "target-step.toml"))["test"]
     assert [s["to"] for s in ts["switches"]][:1] == ["IBVS"]
     assert ts["final_error_m"] < 0.05
+
+
+def test_unsteady_relay_cycles_are_named():
+    """The flow re-runs the NP-MRFT with a larger a_n when the last cycles are not steady."""
+    from types import SimpleNamespace
+
+    from uavsim.scenario.flow import _unsteady
+
+    def run(lengths):
+        u = np.concatenate([np.r_[np.ones(n // 2), -np.ones(n - n // 2)] for n in lengths]) * 0.1
+        y = np.cumsum(u)  # an integrator's triangle wave
+        return SimpleNamespace(y=y[None], u=u[None])
+
+    assert _unsteady(run([100] * 6), 0.1) is None
+    why = _unsteady(run([100] * 4 + [87, 154, 100]), 0.1)
+    assert why is not None and "no steady state" in why

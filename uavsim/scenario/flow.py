@@ -6,7 +6,10 @@ loop), through the scenario's sensor chain:
 1. hover ``hover_s`` seconds and estimate the measurement noise
    (``uavsim.noise.estimate``): ``tau_obs`` and ``a_n``;
 2. run the NP-MRFT at ``beta``; if the cycle period ``T0`` it produces makes
-   ``beta_min(tau_obs, T0) > beta``, shorten ``tau_obs`` and run again;
+   ``beta_min(tau_obs, T0) > beta``, shorten ``tau_obs`` and run again; if the
+   last cycles are not steady (noise switching the relay, which happens when
+   beta caps ``tau_obs`` below the noise period), run again with ``a_n``
+   1.6 times larger, at most twice;
 3. save the episode as a flight session and identify it with **one call**,
    :func:`identify` (the trained networks of ``uavsim.learning`` for
    ``method = "dnn"``; the describing-function MRFT rule on the measured
@@ -54,6 +57,9 @@ __all__ = ["identify", "identify_mrft_df", "run_scenario", "step_ise_measured"]
 
 RATE_HZ = 200.0
 DT = 0.0005
+#: relay re-runs with a larger a_n when the cycle is not steady (noise switching the relay)
+A_N_RETRIES = 2
+A_N_RETRY_FACTOR = 1.6
 
 
 def _log(msg: str) -> None:
@@ -162,15 +168,26 @@ def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, wor
     tau_obs, a_n = recommend(est, beta)
     settle = min(5.0, 0.3 * ident_cfg.duration_s)
     res = None
-    for attempt in range(2):
+    capped = False
+    retries: list[str] = []
+    for attempt in range(2 + A_N_RETRIES):
         relay = NPMRFT(beta=beta, h=h, tau_obs=tau_obs, a_n=a_n, rate_hz=RATE_HZ, n=1)
         res = run_ep(seed + 1 + attempt, relay, ident_cfg.duration_s)
         if res.diverged[0]:
             raise UserError(f"{loop}: the relay test diverged ({res.reasons.get(0)})")
         T0 = cycle_stats(res.t, res.r[0] - res.y[0], res.u[0], settle=settle)[0]
-        if not math.isfinite(T0) or float(beta_min(tau_obs, T0)) <= beta:
+        if not capped and math.isfinite(T0) and float(beta_min(tau_obs, T0)) > beta:
+            tau_obs, a_n = recommend(est, beta, T0)
+            capped = True
+            continue
+        why = _unsteady(res, h)
+        if why is None or len(retries) >= A_N_RETRIES:
             break
-        tau_obs, a_n = recommend(est, beta, T0)
+        # beta caps tau_obs below the noise period: noise extrema pass the observation window and
+        # fire extra switches; a higher switching margin is the protection left (NP-MRFT's a_n)
+        retries.append(f"a_n {a_n:.4g} -> {A_N_RETRY_FACTOR * a_n:.4g} ({why})")
+        _log(f"  {loop}: relay cycle not steady ({why}); NP-MRFT again with a_n x {A_N_RETRY_FACTOR}")
+        a_n *= A_N_RETRY_FACTOR
     e = res.r[0] - res.y[0]
     df = identify_mrft_df(res.t, e, res.u[0], beta, h, ident_cfg.pm_deg, settle)
     sess = relay_session(res, 0, _dummy(loop), beta=beta, h=h, rate_hz=RATE_HZ, tau_obs=tau_obs, a_n=a_n,
@@ -178,10 +195,21 @@ def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, wor
     path = write_session(sess, workdir / f"{tag}-{loop}")
     ident = identify(path, ident_cfg.method, ident_cfg.model_dir, df)
     ident["relay"] = {"beta": beta, "h": h, "tau_obs": tau_obs, "a_n": a_n, "T0": df["cycle"]["T0"],
-                      "a0": df["cycle"]["a0"], "noise_sigma": est.sigma, "T_n": est.T_n}
+                      "a0": df["cycle"]["a0"], "noise_sigma": est.sigma, "T_n": est.T_n, "retries": retries}
     ident["session"] = str(path)
     ident["episode"] = res
     return ident
+
+
+def _unsteady(res: VisionResult, h: float) -> str | None:
+    """Why the relay run's last cycles are not a steady oscillation (``preprocess.features``), or None."""
+    from uavsim.data.preprocess import NoOscillation, features
+
+    try:
+        features(res.y[0], res.u[0], RATE_HZ, h, 0.0, res.y.shape[1])
+    except NoOscillation as exc:
+        return str(exc)
+    return None
 
 
 def _dummy(loop: str) -> LumpedParams:
