@@ -129,3 +129,15 @@ def test_waveform_harmonics_of_a_known_signal():
     edges = np.round(start + N * np.arange(cycles + 1)).astype(int)
     leak = cycle_harmonics(x, edges, (3,))[0]
     assert abs(leak - true[2]) > 0.1 * abs(true[2])
+
+
+def test_waveform_harmonics_stop_below_nyquist():
+    """Short cycles: harmonics at or above 0.8 Nyquist are NaN, not a singular solve."""
+    from uavsim.data.preprocess import waveform_harmonics
+
+    u = np.tile(np.r_[np.ones(4), -np.ones(4)], 6)  # 8-sample cycles: the 4th harmonic is Nyquist
+    (hu,) = waveform_harmonics(u, 8, 48, 8.0)
+    assert np.all(np.isfinite(hu[:3])) and np.all(np.isnan(hu[3:]))
+    assert abs(hu[0]) > 0.5 and abs(hu[1]) < 1e-12  # a square wave has no even harmonics
+    (h4,) = waveform_harmonics(u, 8, 16, 4.0)  # 4-sample cycles: the fundamental only
+    assert np.isfinite(h4[0]) and np.all(np.isnan(h4[1:]))

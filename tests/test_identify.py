@@ -9,6 +9,7 @@ preprocessing of sessions and of training data, and the gain recovery agree.
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -177,3 +178,53 @@ def test_select_class_finds_the_lags_from_the_harmonics():
             assert select_class(net[None], *args)[0] == c
         ranks.append(rank)
     assert max(ranks) >= 10 and sum(0 < k < SELECT_TOP for k in ranks) >= 8  # the ranking alone was wrong
+
+
+def test_lateral_fit_recovers_gain_and_outer_delay():
+    """The lateral fit against a frequency response built with python-control (delays as exact
+    phase): with the class's T2 right, K and the outer delay come back exactly."""
+    import control
+
+    from uavsim.learning.identify import (
+        fit_response_lateral,
+        held_response,
+        lateral_context,
+        lateral_gains,
+    )
+
+    sub, att = lateral_context(5)
+    i = 3
+    T2, tau_out, K = float(sub.params["T2"][i]), float(sub.params["tau"][i]) * 1.3 + 0.004, 0.8
+    w = np.array([0.9, 1.7, 2.6])
+    s = control.tf("s")
+    N = 2 * np.pi * att["att_filter_hz"]
+    C = att["att_kp"] + att["att_kd"] * s / (1 + s / N)
+    Ga = 1 / (s * (att["T_prop"] * s + 1) * (att["T1"] * s + 1))
+    L = np.array([control.evalfr(C * Ga, 1j * x) for x in w]) * np.exp(-1j * w * att["tau_in"])
+    G = K * (L / (1 + L)) * np.exp(-1j * w * tau_out) / np.array([control.evalfr(s * (T2 * s + 1), 1j * x) for x in w])
+    table = {"T2": sub.params["T2"], "tau": sub.params["tau"]}
+    fit = fit_response_lateral(held_response(G, w, 200.0), 2 * np.pi / w, np.full(3, i), table, att, rate_hz=200.0)
+    np.testing.assert_allclose(fit["K"], K, rtol=1e-9)
+    np.testing.assert_allclose(fit["tau"], tau_out, atol=1e-9)
+    # the rule on the exact model is the sub-grid's own rule for that process
+    g = lateral_gains(fit, sub.rule)
+    ref = sub.rule.gains(replace(sub.params_of(i), K=K, tau=tau_out, loop="lateral_y"))
+    np.testing.assert_allclose(g["kp"], ref.kp, rtol=1e-6)
+    np.testing.assert_allclose(g["kd"], ref.kd, rtol=1e-6)
+
+
+def test_lateral_session_needs_attitude_class_and_network(tmp_path):
+    from uavsim.control.relay import NPMRFT
+    from uavsim.sim.runner import LoopBatch
+    from uavsim.sim.sessions import relay_session
+    from uavsim.tuning.grid import load_grid
+
+    sub = load_grid("lateral").lateral(2)
+    p = replace(sub.params_of(0), K=1.0, loop="lateral_y")
+    res = LoopBatch([p], dt=0.001, rate_hz=200.0, seed=1).run(NPMRFT(sub.beta, 0.05, 0.01, 0.0, 200.0, 1), 4.0)
+    sess = write_session(relay_session(res, 0, p, beta=sub.beta, h=0.05, rate_hz=200.0, tau_obs=0.01, a_n=0.0,
+                                       with_model=False), tmp_path / "lat")
+    with pytest.raises(UserError, match="--attitude-class"):
+        identify_session(sess, model_dir=tmp_path / "none")
+    with pytest.raises(UserError, match="no trained lateral network under .*a02"):
+        identify_session(sess, model_dir=tmp_path / "none", attitude_class=2)

@@ -5,9 +5,14 @@ for. The JSON (``--json``) is that of the session format: ``loop``, ``class``,
 ``params`` (K, T_prop, T1, tau), ``gains`` (kp, kd, derivative_filter_hz for the
 identified K), plus ``oscillation`` and ``run``. ``--write-model`` stores the
 identified ``[model]`` in the session (``--force`` replaces an existing one).
+A lateral session closes over an attitude loop: ``--attitude-class N`` names
+its class (identify the roll or pitch session first); the answer's ``params``
+then hold ``T2`` and the outer delay ``tau`` with the attitude loop's
+``T_prop``, ``T1`` and ``tau_in``.
 
     uavsim identify scenarios/sessions/altitude-npmrft --json
     uavsim identify SESSION --models training/runs/small --write-model
+    uavsim identify LATERAL_SESSION --attitude-class 17 --json
 """
 
 from __future__ import annotations
@@ -24,6 +29,9 @@ def register(subparsers) -> None:
     p.add_argument("--models", help="exported model folder, or a root with altitude/ and attitude/ "
                                     "(default: $UAVSIM_MODELS or training/runs)")
     p.add_argument("--run", help="file name of the run to use (default: the first np-mrft run)")
+    p.add_argument("--attitude-class", type=int, metavar="N",
+                   help="lateral sessions: the attitude class of the roll/pitch loop underneath "
+                        "(from `uavsim identify` of its session); picks the network lateral/aNN")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -33,7 +41,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from uavsim.learning.identify import identify_session, write_model
 
-    ans = identify_session(args.session, model_dir=args.models, run=args.run)
+    ans = identify_session(args.session, model_dir=args.models, run=args.run, attitude_class=args.attitude_class)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)

@@ -67,6 +67,8 @@ MIN_CYCLE_SAMPLES = 8
 RESPONSE_CYCLES = 4
 #: harmonics of the cycle's waveform measured over the same cycles (1 = the fundamental)
 HARMONICS = 7
+#: harmonics are measured (and scored) strictly below this fraction of the Nyquist frequency
+HARMONIC_NYQUIST_FRACTION = 0.8
 
 
 class NoOscillation(UserError):
@@ -167,18 +169,28 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
 
     Returns
     -------
-    One (orders,) complex array per signal.
+    One (orders,) complex array per signal; NaN for the orders at or above
+    ``HARMONIC_NYQUIST_FRACTION`` of Nyquist (``k >= 0.4 period``), which are not fitted.
     """
     x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    out = np.full((x.shape[0], orders), complex("nan"))
+    # harmonics near Nyquist are aliases (and exactly at it, a zero column): fit those below
+    # HARMONIC_NYQUIST_FRACTION of it only
+    H = min(orders, int(np.ceil(HARMONIC_NYQUIST_FRACTION * period / 2.0)) - 1)
     n = np.arange(start, stop, dtype=np.float64)
-    t = (n - n.mean()) / max(len(n), 1)
-    z = np.cumprod(np.broadcast_to(np.exp(1j * (2.0 * np.pi / period) * n)[:, None], (len(n), orders)), axis=1)
+    if H < 1 or len(n) < 2 * H + 4:
+        return tuple(out)
+    t = (n - n.mean()) / len(n)
+    z = np.cumprod(np.broadcast_to(np.exp(1j * (2.0 * np.pi / period) * n)[:, None], (len(n), H)), axis=1)
     A = np.column_stack([np.ones_like(n), t, z.real, z.imag])  # z[:, k-1] = exp(j k w n)
     # normal equations: the columns are near-orthogonal over whole cycles, and a (2H+2)^2 solve
     # is several times faster than an SVD of the (samples, 2H+2) matrix (identification latency)
-    c = np.linalg.solve(A.T @ A, A.T @ x[:, start:stop].T)
-    X = 0.5 * (c[2 : 2 + orders] - 1j * c[2 + orders :])
-    return tuple(X[:, i] for i in range(x.shape[0]))
+    try:
+        c = np.linalg.solve(A.T @ A, A.T @ x[:, start:stop].T)
+    except np.linalg.LinAlgError:
+        c = np.linalg.lstsq(A, x[:, start:stop].T, rcond=None)[0]
+    out[:, :H] = (0.5 * (c[2 : 2 + H] - 1j * c[2 + H :])).T
+    return tuple(out)
 
 
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,

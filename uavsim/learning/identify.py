@@ -57,15 +57,13 @@ from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
            "fit_response", "model_gains", "measured_point_gains", "held_response", "waveform_scores", "select_class",
-           "SATURATION_FRACTION", "SELECT_TOP"]
+           "lateral_context", "fit_response_lateral", "lateral_gains", "SATURATION_FRACTION", "SELECT_TOP"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
 _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 #: candidates (the network's most likely classes) that ``select_class`` weighs by the cycle's harmonics
 SELECT_TOP = 30
-#: harmonics above this fraction of Nyquist are not scored (a few samples a period: aliases)
-_NYQUIST_FRACTION = 0.8
 
 _predictors: dict[str, Predictor] = {}
 
@@ -78,18 +76,22 @@ def default_model_root() -> Path:
     return Path(__file__).resolve().parents[2] / "training" / "runs"
 
 
-def resolve_model_dir(family: str, model_dir: str | os.PathLike | None = None) -> Path:
+def resolve_model_dir(family: str, model_dir: str | os.PathLike | None = None,
+                      att_class: int | None = None) -> Path:
     """The exported model folder for a loop family.
 
     ``model_dir`` may be a model folder itself (holding ``meta.json``) or a root
-    with one folder per family (``altitude/``, ``attitude/``).
+    with one folder per family (``altitude/``, ``attitude/``, and
+    ``lateral/aNN/`` per attitude class ``att_class``).
     """
     root = Path(model_dir) if model_dir is not None else default_model_root()
     if (root / META_FILE).is_file():
         return root
-    if (root / family / META_FILE).is_file():
-        return root / family
-    raise UserError(f"no trained {family} network under {root} (run `make train` or pass --models DIR)")
+    sub = Path(family) / f"a{att_class:02d}" if family == "lateral" and att_class is not None else Path(family)
+    if (root / sub / META_FILE).is_file():
+        return root / sub
+    make = "make train LOOPS=lateral" if family == "lateral" else "make train"
+    raise UserError(f"no trained {family} network under {root / sub} (run `{make}` or pass --models DIR)")
 
 
 def _predictor(d: Path) -> Predictor:
@@ -172,7 +174,7 @@ def waveform_scores(cls: np.ndarray, response: np.ndarray, response_period: np.n
     -------
     (m, c) float, dimensionless (lower is better)
     """
-    from uavsim.data.preprocess import INPUT_RATE_HZ
+    from uavsim.data.preprocess import HARMONIC_NYQUIST_FRACTION, INPUT_RATE_HZ
 
     rate = rate_hz or INPUT_RATE_HZ
     cls = np.atleast_2d(np.asarray(cls, dtype=np.int64))
@@ -188,7 +190,7 @@ def waveform_scores(cls: np.ndarray, response: np.ndarray, response_period: np.n
     G = np.exp(-s * tau) / (s * (Tp * s + 1.0) * (T1 * s + 1.0)) * held_response(1.0, w * k, rate)
     pred = (G[..., 1:] / G[..., :1]) * (hu[..., 1:] / hu[..., :1])
     err = np.abs(hy[..., 1:] / hy[..., :1] - pred) ** 2
-    usable = (w * k / rate)[..., 1:] < _NYQUIST_FRACTION * np.pi
+    usable = ((w * k / rate)[..., 1:] < HARMONIC_NYQUIST_FRACTION * np.pi) & np.isfinite(err)
     return np.where(usable, err, 0.0).sum(axis=-1)
 
 
@@ -226,8 +228,70 @@ def model_gains(model: dict[str, np.ndarray], family: str, beta: float, pm_deg: 
     return {k: np.asarray(g[k], dtype=np.float64) for k in ("kp", "kd", "N", "derivative_filter_hz", "omega")}
 
 
+def lateral_context(att_class: int, attitude: dict[str, float] | None = None) -> tuple[Any, dict[str, float]]:
+    """The lateral sub-grid of ``att_class`` and the attitude loop the lateral model closes.
+
+    ``attitude`` (keys ``T_prop``, ``T1``, ``tau_in`` in s, ``att_kp``, ``att_kd`` for the
+    unit-gain attitude process, ``att_filter_hz``) replaces the class's own (its rule's PD) when
+    the flight's attitude loop is known better: identified and tuned, as ``uavsim scenario`` does.
+    Returns ``(sub_grid, attitude)``.
+    """
+    from uavsim.tuning.grid import load_grid
+
+    sub = load_grid("lateral").lateral(int(att_class))
+    att = dict(sub.attitude)
+    if attitude is not None:
+        missing = {"T_prop", "T1", "tau_in", "att_kp", "att_kd", "att_filter_hz"} - set(attitude)
+        if missing:
+            raise UserError(f"attitude loop for the lateral model lacks {', '.join(sorted(missing))}")
+        att.update({k: float(attitude[k]) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd", "att_filter_hz")})
+    return sub, att
+
+
+def _lateral_args(att: dict[str, float], m: int) -> dict[str, np.ndarray]:
+    return {"T_prop": np.full(m, att["T_prop"]), "T1": np.full(m, att["T1"]), "tau_in": np.full(m, att["tau_in"]),
+            "att_kp": np.full(m, att["att_kp"]), "att_kd": np.full(m, att["att_kd"]),
+            "att_N": np.full(m, 2.0 * np.pi * att["att_filter_hz"])}
+
+
+def fit_response_lateral(response: np.ndarray, response_period: np.ndarray, cls: np.ndarray, table: dict[str, Any],
+                         attitude: dict[str, float], rate_hz: float | None = None) -> dict[str, np.ndarray]:
+    """``fit_response`` for the lateral loop: the class's ``T2`` over the closed attitude loop.
+
+    With ``G0 = T_att(jw) / (jw (T2 jw + 1))`` (``uavsim.lumped.lateral``, unit gain):
+    ``K = |G(jw)| / |G0(jw)|`` and the outer delay ``tau = (arg G0 - arg G) / w`` on the
+    branch nearest the class's own, clipped at 0. Returns (m,) arrays ``K``, ``T2``, ``tau``,
+    ``tau_class`` and the attitude loop's ``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_N``.
+    """
+    from uavsim.data.preprocess import INPUT_RATE_HZ
+    from uavsim.lumped.lateral import attitude_closed_loop_batch
+
+    cls = np.asarray(cls, dtype=np.int64)
+    m = cls.size
+    w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
+    G = np.asarray(response) / held_response(1.0, w, rate_hz or INPUT_RATE_HZ)
+    T2, tau_c = (np.asarray(table[k], dtype=np.float64)[cls] for k in ("T2", "tau"))
+    a = _lateral_args(attitude, m)
+    Tatt = attitude_closed_loop_batch(w[:, None], a["T_prop"], a["T1"], a["tau_in"], a["att_kp"], a["att_kd"],
+                                      a["att_N"])[:, 0]
+    G0 = Tatt / (1j * w * (1j * w * T2 + 1.0))
+    # unwrapped: the closed attitude loop lags less than pi at the lateral cycle's frequency
+    ph0 = -0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt)
+    ph_c = ph0 - w * tau_c
+    ph_m = ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
+    return {"K": np.abs(G) / np.abs(G0), "T2": T2, "tau": np.maximum((ph0 - ph_m) / w, 0.0), "tau_class": tau_c, **a}
+
+
+def lateral_gains(model: dict[str, np.ndarray], rule) -> dict[str, np.ndarray]:
+    """The lateral sub-grid's rule (``TuningRule`` with its ``gain_scale``) on ``fit_response_lateral`` models."""
+    g = rule.gains_batch("lateral", K=model["K"], T_prop=model["T_prop"], T1=model["T1"], tau=model["tau"],
+                         T2=model["T2"], tau_in=model["tau_in"], att_kp=model["att_kp"], att_kd=model["att_kd"],
+                         att_N=model["att_N"])
+    return {k: np.asarray(g[k], dtype=np.float64) for k in ("kp", "kd", "N", "derivative_filter_hz", "omega")}
+
+
 def measured_point_gains(response: np.ndarray, response_period: np.ndarray, beta: float, pm_deg: float,
-                         rate_hz: float | None = None) -> dict[str, np.ndarray]:
+                         rate_hz: float | None = None, gain_scale: float = 1.0) -> dict[str, np.ndarray]:
     """The rule's constants at the measured point, no model: ``kp = c1 / |G(j w)|``, ``Td = c3 2 pi / w``.
 
     Boiko's non-parametric MRFT tuning with the exact first-harmonic gain of the
@@ -241,7 +305,7 @@ def measured_point_gains(response: np.ndarray, response_period: np.ndarray, beta
     from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
     from uavsim.tuning.rule import rule_constants
 
-    c1, c3 = rule_constants(beta, pm_deg)
+    c1, c3 = rule_constants(beta, pm_deg, gain_scale)
     w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
     kp = c1 / np.abs(np.asarray(response) / held_response(1.0, w, rate_hz or INPUT_RATE_HZ))
     N = DERIVATIVE_FILTER_RATIO * w
@@ -276,7 +340,7 @@ def _check_not_saturated(y: np.ndarray) -> None:
 
 
 def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, predictor: Predictor,
-                    beta: float | None = None) -> dict[str, Any]:
+                    beta: float | None = None, lateral: tuple[Any, dict[str, float]] | None = None) -> dict[str, Any]:
     """Identify from raw traces (control-rate samples).
 
     Parameters
@@ -290,6 +354,8 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
         Exported network of the loop's family.
     beta : float or None
         The run's MRFT parameter; must match the network's (checked when given).
+    lateral : (sub_grid, attitude) or None
+        Lateral networks only: ``lateral_context`` of the network's attitude class.
 
     Returns
     -------
@@ -312,6 +378,8 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     net_cls, act = predictor.predict(f.x)
     tab = meta["classes"]
     fam = meta["loop"]
+    if fam == "lateral":
+        return _identify_lateral(f, net_cls, act, meta, lateral)
     cls_arr = select_class(act, np.array([f.response]), np.array([f.response_period]), f.harmonics_y[None],
                            f.harmonics_u[None], tab, fam)
     c = int(cls_arr[0])
@@ -323,9 +391,7 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     params = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "tau")}
     gains = {k: float(g[k][0]) for k in ("kp", "kd", "derivative_filter_hz")}
     gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), *rule)
-    a = act[0].astype(np.float64)
-    p = np.exp(a - a.max())
-    p /= p.sum()
+    p = _softmax(act[0])
     return {
         "loop": meta["loop"],
         "class": c,
@@ -343,8 +409,51 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     }
 
 
+def _softmax(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    p = np.exp(a - a.max())
+    return p / p.sum()
+
+
+def _identify_lateral(f, net_cls: np.ndarray, act: np.ndarray, meta: dict[str, Any],
+                      lateral: tuple[Any, dict[str, float]] | None) -> dict[str, Any]:
+    """The lateral branch of ``identify_arrays``: the network's class (no harmonic selection: with
+    ~15 classes a sub-grid it has not been evaluated), ``K`` and the outer delay fitted over the
+    attitude loop, the sub-grid's rule (``gain_scale`` included)."""
+    if lateral is None:
+        raise UserError("a lateral network needs its attitude loop: pass the attitude class (--attitude-class)")
+    sub, att = lateral
+    tab = meta["classes"]
+    if len(tab["T2"]) != sub.n:
+        raise UserError(f"the lateral network has {len(tab['T2'])} classes, attitude class "
+                        f"{att.get('att_class')}'s sub-grid {sub.n}: trained on another lateral grid")
+    c = int(net_cls[0])
+    model = fit_response_lateral(np.array([f.response]), np.array([f.response_period]), net_cls, tab, att)
+    if not (np.isfinite(model["K"][0]) and model["K"][0] > 0):
+        raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
+    g = lateral_gains(model, sub.rule)
+    gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), sub.beta, sub.pm_deg,
+                              gain_scale=sub.gain_scale)
+    p = _softmax(act[0])
+    params = {"K": float(model["K"][0]), "T_prop": att["T_prop"], "T1": att["T1"], "T2": float(model["T2"][0]),
+              "tau": float(model["tau"][0]), "tau_in": att["tau_in"]}
+    return {
+        "loop": meta["loop"], "class": c, "network_class": c, "attitude_class": att.get("att_class"),
+        "params": params, "gains": {k: float(g[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
+        "attitude": {k: att[k] for k in ("att_kp", "att_kd", "att_filter_hz")},
+        "oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
+                        "start": f.start, "stop": f.stop},
+        "softmax_top": float(p[c]), "softmax_class": float(p[c]),
+        "class_params": {"T2": float(tab["T2"][c]), "tau": float(tab["tau"][c])},
+        "gains_measured_point": {k: float(gm[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
+        "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
+                     "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
+    }
+
+
 def identify_session(path: str | os.PathLike, model_dir: str | os.PathLike | None = None,
-                     run: str | None = None) -> dict[str, Any]:
+                     run: str | None = None, attitude_class: int | None = None,
+                     attitude: dict[str, float] | None = None) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (see module docstring).
 
     Parameters
@@ -355,6 +464,13 @@ def identify_session(path: str | os.PathLike, model_dir: str | os.PathLike | Non
         Exported model folder or a root with ``altitude/``, ``attitude/`` (default ``default_model_root()``).
     run : str or None
         File name of the run to use (default: the first np-mrft run, else the first mrft run).
+    attitude_class : int or None
+        Lateral sessions only (required): the attitude class of the loop the lateral one
+        closes over (what ``uavsim identify`` gave its roll or pitch session); picks the
+        lateral network ``lateral/aNN`` and its sub-grid.
+    attitude : dict or None
+        Lateral only: the flight's attitude loop when known (``lateral_context``); default the
+        class's own.
 
     Returns
     -------
@@ -368,8 +484,12 @@ def identify_session(path: str | os.PathLike, model_dir: str | os.PathLike | Non
 
     s = read_session(path)
     fam = loop_family(s.loop)
+    lateral = None
     if fam == "lateral":
-        raise UserError("lateral identification needs the attitude class and its lateral network; not supported yet")
+        if attitude_class is None:
+            raise UserError(f"session {path} is {s.loop}: pass the attitude class its loop closes over "
+                            "(--attitude-class N, from `uavsim identify` of the roll/pitch session)")
+        lateral = lateral_context(attitude_class, attitude)
     relays = [r for r in s.runs if r.spec.kind in ("np-mrft", "mrft")]
     if run is not None:
         relays = [r for r in relays if r.spec.file == run]
@@ -379,12 +499,14 @@ def identify_session(path: str | os.PathLike, model_dir: str | os.PathLike | Non
         raise UserError(f"session {path}: no np-mrft or mrft run to identify from")
     relays.sort(key=lambda r: r.spec.kind != "np-mrft")
     r = relays[0]
-    d = resolve_model_dir(fam, model_dir)
+    d = resolve_model_dir(fam, model_dir, attitude_class)
     pred = _predictor(d)
     if pred.meta.get("loop") not in (fam, s.loop):
         raise UserError(f"{d} holds a {pred.meta.get('loop')} network, the session is {s.loop}")
+    if fam == "lateral" and pred.meta.get("att_class") not in (None, attitude_class):
+        raise UserError(f"{d} is the lateral network of attitude class {pred.meta['att_class']}, not {attitude_class}")
     ans = identify_arrays(r.data.y, r.data.u, s.control_rate_hz, float(r.spec.h), float(r.spec.bias or 0.0), pred,
-                          beta=r.spec.beta)
+                          beta=r.spec.beta, lateral=lateral)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
     ans["model_dir"] = str(d)

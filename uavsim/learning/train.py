@@ -414,6 +414,7 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
         "name": recipe.name,
         "loop": a.get("loop", recipe.loop),
         "grid_hash": a.get("grid_hash", ""),
+        "att_class": int(a["att_class"]) if a.get("att_class") is not None else None,  # lateral: its sub-grid
         "beta": a.get("beta"),
         "pm_deg": _grid_pm(a),
         "h": a.get("h", 1.0),

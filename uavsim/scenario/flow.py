@@ -96,11 +96,13 @@ def identify_mrft_df(t: np.ndarray, e: np.ndarray, u: np.ndarray, beta: float, h
             "cycle": {"T0": T0, "a0": a0, "n_cycles": ncyc}}
 
 
-def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str, Any]) -> dict[str, Any]:
+def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str, Any],
+             **lateral: Any) -> dict[str, Any]:
     """Identify a saved relay session: ``{"class", "params", "gains", "identifier", ...}``.
 
     ``method`` ``dnn`` calls ``uavsim.learning.identify.identify_session``
-    (trained networks); ``mrft-df`` returns ``mrft_df`` (the describing-function
+    (trained networks; ``lateral`` holds its ``attitude_class`` and ``attitude`` for a
+    lateral session); ``mrft-df`` returns ``mrft_df`` (the describing-function
     rule, computed by the caller on the same run); ``auto`` tries the networks
     and says why it fell back.
     """
@@ -114,7 +116,7 @@ def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str,
             note = f"DNN identification not available ({exc})"
         else:
             try:
-                out = identify_session(session_path, model_dir=model_dir or None)
+                out = identify_session(session_path, model_dir=model_dir or None, **lateral)
                 out = dict(out)
                 out.setdefault("identifier", "dnn")
                 return out
@@ -141,12 +143,18 @@ def step_ise_measured(t: np.ndarray, e_true: np.ndarray, step_time: float, size:
 def _q_sim(ident: dict[str, Any], loop: str) -> float | None:
     """Step ISE of the identified model with its gains (paper's Q_sim); None without a model."""
     p = ident.get("params")
-    if not p or loop != "altitude":
+    if not p or (loop != "altitude" and p.get("T2") is None):
         return None
     from uavsim.lumped.simulate import step_ise
 
     g = ident["gains"]
-    lp = LumpedParams(loop, K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]))
+    if loop == "altitude":
+        lp = LumpedParams(loop, K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]))
+    else:
+        a = ident["attitude"]
+        lp = LumpedParams(loop, K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]),
+                          T2=float(p["T2"]), tau_in=float(p["tau_in"]), att_kp=float(a["att_kp"]),
+                          att_kd=float(a["att_kd"]), att_filter_hz=float(a["att_filter_hz"]))
     N = 2 * math.pi * float(g.get("derivative_filter_hz") or 10.0)
     return float(step_ise(lp, float(g["kp"]), float(g["kd"]), N))
 
@@ -160,7 +168,7 @@ def _episode(truth: LumpedParams, scn: Scenario, mode: str, seed: int, forces=()
 
 
 def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, workdir: Path, tag: str,
-                    seed: int) -> dict[str, Any]:
+                    seed: int, lateral: dict[str, Any] | None = None) -> dict[str, Any]:
     """Hover, noise estimate, NP-MRFT (re-run once if beta_min > beta), session, identification."""
     ident_cfg = scn.identification
     hover = run_ep(seed, lambda e: np.zeros_like(e), ident_cfg.hover_s)
@@ -193,7 +201,7 @@ def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, wor
     sess = relay_session(res, 0, _dummy(loop), beta=beta, h=h, rate_hz=RATE_HZ, tau_obs=tau_obs, a_n=a_n,
                          with_model=False)
     path = write_session(sess, workdir / f"{tag}-{loop}")
-    ident = identify(path, ident_cfg.method, ident_cfg.model_dir, df)
+    ident = identify(path, ident_cfg.method, ident_cfg.model_dir, df, **(lateral or {}))
     ident["relay"] = {"beta": beta, "h": h, "tau_obs": tau_obs, "a_n": a_n, "T0": df["cycle"]["T0"],
                       "a0": df["cycle"]["a0"], "noise_sigma": est.sigma, "T_n": est.T_n, "retries": retries}
     ident["session"] = str(path)
@@ -257,16 +265,45 @@ def _loop_truth(scn: Scenario, loop: str, workdir: Path, seed: int, extra: dict)
     return extra["lateral_truth"]
 
 
+def _lateral_networks(scn: Scenario, roll: dict[str, Any]) -> tuple[float | None, dict[str, Any] | None]:
+    """The lateral test's beta and the identification context when the roll loop's class has a network.
+
+    The lateral network of attitude class ``a`` was trained at its sub-grid's beta, so the relay must
+    run at that beta; the attitude loop underneath is the identified roll model with the roll PD the
+    flow tuned (for the unit-gain process: gains times the identified K_roll). ``(None, None)`` when
+    the roll loop was not classified, the method is ``mrft-df`` or no network exists.
+    """
+    c = roll.get("class")
+    if scn.identification.method == "mrft-df" or c is None or not roll.get("params"):
+        return None, None
+    try:
+        from uavsim.learning.identify import lateral_context, resolve_model_dir
+
+        resolve_model_dir("lateral", scn.identification.model_dir or None, int(c))
+    except (ImportError, UserError) as exc:
+        _log(f"  lateral: no network for attitude class {c} ({exc}); beta_lateral and the describing-function rule")
+        return None, None
+    p, g = roll["params"], roll["gains"]
+    att = {"T_prop": p["T_prop"], "T1": p["T1"], "tau_in": p["tau"], "att_kp": g["kp"] * p["K"],
+           "att_kd": g["kd"] * p["K"], "att_filter_hz": g["derivative_filter_hz"], "att_class": int(c)}
+    sub, _ = lateral_context(int(c))
+    return float(sub.beta), {"attitude_class": int(c), "attitude": att}
+
+
 def identify_loop(scn: Scenario, loop: str, mode: str, workdir: Path, seed: int, extra: dict) -> dict[str, Any]:
     """NP-MRFT + identification + tuning + MuJoCo step ISE of one loop in one estimator mode."""
     truth = _loop_truth(scn, loop, workdir, seed, extra)
     beta = scn.identification.beta if loop == "altitude" else scn.identification.beta_lateral
     h = scn.identification.h_altitude if loop == "altitude" else scn.identification.h_lateral
+    lateral = None
+    if loop != "altitude":
+        beta_net, lateral = _lateral_networks(scn, extra["roll"])
+        beta = beta if beta_net is None else beta_net
 
     def run_ep(s, ctrl, dur):
         return _episode(truth, scn, mode, s).run(ctrl, dur)
 
-    ident = _relay_identify(run_ep, loop, beta, h, scn, workdir, mode, seed)
+    ident = _relay_identify(run_ep, loop, beta, h, scn, workdir, mode, seed, lateral)
     g = _gains(ident)
     step = VisionEpisode(truth, ChainParams(camera=scn.camera, axis=loop, imu=scn.imu), mode=mode, seed=seed + 10,
                          dt=DT, rate_hz=RATE_HZ)
