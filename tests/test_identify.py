@@ -228,3 +228,16 @@ def test_lateral_session_needs_attitude_class_and_network(tmp_path):
         identify_session(sess, model_dir=tmp_path / "none")
     with pytest.raises(UserError, match="no trained lateral network under .*a02"):
         identify_session(sess, model_dir=tmp_path / "none", attitude_class=2)
+
+
+def test_cycles_no_class_can_produce_are_refused():
+    """A relay switching on noise cycles at a fraction of the period: refused, not classified."""
+    from uavsim.data.preprocess import NoOscillation
+    from uavsim.learning.identify import PERIOD_RANGE, _check_period, period_in_grid
+
+    table = {"period": [0.5, 0.8, 1.2]}
+    per = np.array([0.5 * PERIOD_RANGE[0] * 0.99, 0.5 * PERIOD_RANGE[0], 1.0, 1.2 * PERIOD_RANGE[1],
+                    1.2 * PERIOD_RANGE[1] * 1.01])
+    assert period_in_grid(per, table).tolist() == [False, True, True, True, False]
+    with pytest.raises(NoOscillation, match=r"cycle period 0.2 s is outside .*0.5-1.2 s"):
+        _check_period(0.2, table)

@@ -35,13 +35,18 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
-from uavsim.learning.identify import fit_response, measured_point_gains, model_gains, select_class
+from uavsim.learning.identify import (
+    fit_response,
+    measured_point_gains,
+    model_gains,
+    period_in_grid,
+    select_class,
+)
 from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
 
 __all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "class_gains", "amplitude_gain",
-           "closed_loop_deterioration",
-           "evaluate_offgrid", "summarize_deterioration"]
+           "closed_loop_deterioration", "evaluate_offgrid", "evaluate_offgrid_lateral", "summarize_deterioration"]
 
 
 @dataclass
@@ -219,6 +224,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         if progress:
             print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     X, period, amp, ok, level, resp, rper, hy, hu = (np.concatenate(v) for v in zip(*parts, strict=True))
+    ok &= period_in_grid(np.nan_to_num(period), table)  # identification refuses the others
     idx = np.flatnonzero(ok)
     h = recipe.test.h
     fam = meta["loop"]
@@ -285,6 +291,93 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     }
 
 
+def evaluate_offgrid_lateral(model_root: str | os.PathLike, recipe_path: str | os.PathLike, att_classes: list[int],
+                             n_per: int = 40, seed: int = 11, K: tuple[float, float] = (0.5, 2.0)) -> dict[str, Any]:
+    """Off-grid lateral processes over given attitude classes, through MuJoCo and identification.
+
+    For each attitude class ``a``: ``n_per`` processes with ``T2``, the outer delay and ``K``
+    log-uniform in the lateral box, over the class's own closed attitude loop (its rule PD), simulated
+    with the lateral recipe's episode, noise and preprocessing; identified with the network
+    ``lateral/aNN`` (``fit_response_lateral``, the sub-grid's rule). Deterioration is against the
+    sub-grid's rule on the true process; processes where that rule itself is unstable are counted
+    (``rule_unstable``) and left out.
+
+    Returns
+    -------
+    dict: ``per_class`` (att class -> n, n_identified, deterioration), ``deterioration`` (all),
+    ``measured_point_rule``, ``oracle_class`` (nearest sub-grid class in the log box), ``rule_unstable``,
+    ``wall_s``.
+    """
+    from dataclasses import replace as _replace
+
+    from uavsim.data.generate import simulate_features
+    from uavsim.data.recipe import load_recipe
+    from uavsim.learning.identify import (
+        fit_response_lateral,
+        lateral_context,
+        lateral_gains,
+        resolve_model_dir,
+    )
+    from uavsim.lumped.ise import step_ise_batch
+
+    t0 = time.perf_counter()
+    recipe = load_recipe(recipe_path)
+    if recipe.loop != "lateral":
+        raise UserError(f"{recipe_path}: not a lateral recipe")
+    box = RANGES["lateral"]
+    det_all, det_mp, det_or, per_class, rule_unstable = [], [], [], {}, 0
+    for a in att_classes:
+        sub, att = lateral_context(a)
+        pred = Predictor(resolve_model_dir("lateral", model_root, a))
+        table = pred.meta["classes"]
+        rng = np.random.default_rng([seed, a])
+        T2, tau = (np.exp(rng.uniform(math.log(box[k][0]), math.log(box[k][1]), n_per)) for k in ("T2", "tau"))
+        Ks = np.exp(rng.uniform(math.log(K[0]), math.log(K[1]), n_per))
+        params = [LumpedParams("lateral_x", float(Ks[i]), att["T_prop"], att["T1"], float(tau[i]), T2=float(T2[i]),
+                               tau_in=att["tau_in"], att_kp=att["att_kp"], att_kd=att["att_kd"],
+                               att_filter_hz=att["att_filter_hz"]) for i in range(n_per)]
+        X, period, _, ok, m = simulate_features(params, _replace(recipe, att_classes=(a,)), seed + 1000 * a)
+        idx = np.flatnonzero(ok & period_in_grid(np.nan_to_num(period), table))
+        if idx.size == 0:
+            per_class[a] = {"n": n_per, "n_identified": 0}
+            continue
+        cls, _ = pred.predict(X[idx])
+        resp, rper = m["response"][idx], m["response_period"][idx]
+        truth = {"K": Ks[idx], "T2": T2[idx], "tau": tau[idx], **{k: np.full(idx.size, v) for k, v in (
+            ("T_prop", att["T_prop"]), ("T1", att["T1"]), ("tau_in", att["tau_in"]), ("att_kp", att["att_kp"]),
+            ("att_kd", att["att_kd"]), ("att_N", 2 * np.pi * att["att_filter_hz"]))}}
+        rule = sub.rule.gains_batch("lateral", **truth)
+        q_rule, ok_rule = step_ise_batch("lateral", rule["kp"], rule["kd"], rule["N"], rule["omega"],
+                                         return_stable=True, **truth)
+        rule_unstable += int(np.sum(~ok_rule))
+
+        def det_of(kp, kd, N, truth=truth, rule=rule, q_rule=q_rule, ok_rule=ok_rule):
+            q, st = step_ise_batch("lateral", kp, kd, N, rule["omega"], return_stable=True, **truth)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = np.where(st, q / q_rule - 1.0, np.inf)
+            return d[ok_rule]
+
+        g = lateral_gains(fit_response_lateral(resp, rper, cls, table, att), sub.rule)
+        d = det_of(g["kp"], g["kd"], g["N"])
+        det_all.append(d)
+        gm = measured_point_gains(resp, rper, sub.beta, sub.pm_deg, gain_scale=sub.gain_scale)
+        det_mp.append(det_of(gm["kp"], gm["kd"], gm["N"]))
+        lo = np.log([box["T2"][0], box["tau"][0]])
+        hi = np.log([box["T2"][1], box["tau"][1]])
+        P = (np.log(np.column_stack([T2[idx], tau[idx]])) - lo) / (hi - lo)
+        C = (np.log(np.column_stack([np.asarray(table["T2"], float), np.asarray(table["tau"], float)])) - lo) / (hi - lo)
+        near = np.argmin(((P[:, None, :] - C[None]) ** 2).sum(-1), axis=1)
+        go = lateral_gains(fit_response_lateral(resp, rper, near, table, att), sub.rule)
+        det_or.append(det_of(go["kp"], go["kd"], go["N"]))
+        per_class[a] = {"n": n_per, "n_identified": int(idx.size), "deterioration": summarize_deterioration(d)}
+    cat = lambda v: np.concatenate(v) if v else np.zeros(0)  # noqa: E731
+    return {"model_root": str(model_root), "att_classes": list(att_classes), "n_per": n_per, "seed": seed,
+            "deterioration": summarize_deterioration(cat(det_all)),
+            "measured_point_rule": summarize_deterioration(cat(det_mp)),
+            "oracle_class": summarize_deterioration(cat(det_or)), "rule_unstable": rule_unstable,
+            "per_class": per_class, "wall_s": time.perf_counter() - t0}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m uavsim.learning.evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -293,10 +386,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--heldout", help="held-out dataset (.h5) for top-1 / J metrics")
     ap.add_argument("--n", type=int, default=300)
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--lateral-classes", help="lateral: comma-separated attitude classes (MODEL_DIR is the "
+                                              "root holding lateral/aNN; --n processes per class)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     try:
         out: dict[str, Any] = {}
+        if args.lateral_classes:
+            classes = [int(c) for c in args.lateral_classes.split(",") if c.strip()]
+            out["offgrid_lateral"] = evaluate_offgrid_lateral(args.model_dir, args.recipe, classes, n_per=args.n,
+                                                              seed=args.seed)
+            print(json.dumps(out, indent=None if args.json else 1))
+            return 0
         if args.heldout:
             out["heldout"] = evaluate_heldout(args.model_dir, args.heldout)
         out["offgrid"] = evaluate_offgrid(args.model_dir, args.recipe, n=args.n, seed=args.seed, progress=True)

@@ -32,7 +32,8 @@ the measured point makes the gains depend on the network only through the
 lags' local shape. ``uavsim.learning.evaluate`` reports both, in one run.
 
 A session without a usable oscillation (too short for two cycles, no
-switching, a relay command that is not +-h, a flat or saturated output) is an
+switching, a relay command that is not +-h, a flat or saturated output, a
+period no class of the grid comes near: the relay switching on noise) is an
 error (``NoOscillation``, a ``UserError``), never a guess.
 
     from uavsim.learning.identify import identify_session, write_model
@@ -57,11 +58,16 @@ from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
            "fit_response", "model_gains", "measured_point_gains", "held_response", "waveform_scores", "select_class",
-           "lateral_context", "fit_response_lateral", "lateral_gains", "SATURATION_FRACTION", "SELECT_TOP"]
+           "lateral_context", "fit_response_lateral", "lateral_gains", "period_in_grid", "SATURATION_FRACTION",
+           "SELECT_TOP", "PERIOD_RANGE"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
 _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
+#: a cycle's period must lie within [PERIOD_RANGE[0] x the grid's shortest, PERIOD_RANGE[1] x its longest]
+#: class period: NP-MRFT lengthens cycles (up to ~1.3x off-grid at 20% noise) but never halves them,
+#: which a relay switching on noise does
+PERIOD_RANGE = (0.75, 1.5)
 #: candidates (the network's most likely classes) that ``select_class`` weighs by the cycle's harmonics
 SELECT_TOP = 30
 
@@ -375,9 +381,10 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     seg = np.asarray(y, dtype=np.float64)[f.start : f.stop]
     if seg.size >= 4:
         _check_not_saturated(seg)
-    net_cls, act = predictor.predict(f.x)
     tab = meta["classes"]
     fam = meta["loop"]
+    _check_period(f.period, tab)
+    net_cls, act = predictor.predict(f.x)
     if fam == "lateral":
         return _identify_lateral(f, net_cls, act, meta, lateral)
     cls_arr = select_class(act, np.array([f.response]), np.array([f.response_period]), f.harmonics_y[None],
@@ -407,6 +414,22 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
         "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
                      "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
     }
+
+
+def period_in_grid(period: np.ndarray, table: dict[str, Any]) -> np.ndarray:
+    """Whether each measured cycle period (s) is one the grid's classes can produce (``PERIOD_RANGE``), (m,) bool."""
+    P = np.asarray(table["period"], dtype=np.float64)
+    period = np.asarray(period, dtype=np.float64)
+    return (period >= PERIOD_RANGE[0] * P.min()) & (period <= PERIOD_RANGE[1] * P.max())
+
+
+def _check_period(period: float, table: dict[str, Any]) -> None:
+    from uavsim.data.preprocess import NoOscillation
+
+    if not period_in_grid(np.array([period]), table)[0]:
+        P = np.asarray(table["period"], dtype=np.float64)
+        raise NoOscillation(f"cycle period {period:.3g} s is outside what the grid's classes give ({P.min():.3g}-"
+                            f"{P.max():.3g} s): the relay switched on noise, or the process is outside the grid's box")
 
 
 def _softmax(a: np.ndarray) -> np.ndarray:
