@@ -155,3 +155,26 @@ def test_unsteady_relay_cycles_are_named():
     assert _unsteady(run([100] * 6), 0.1) is None
     why = _unsteady(run([100] * 4 + [87, 154, 100]), 0.1)
     assert why is not None and "no steady state" in why
+
+
+def test_lateral_uses_the_roll_class_network_or_says_why(tmp_path):
+    """With a roll class whose lateral network exists the lateral relay runs at that sub-grid's beta
+    and identification gets the identified roll loop (its PD for the unit-gain process); without
+    one, or with mrft-df, the scenario's beta_lateral and no context."""
+    from uavsim.scenario.flow import _lateral_networks
+    from uavsim.tuning.grid import load_grid
+
+    scn = load_scenario(SCEN / "wind-5ms.toml")
+    roll = {"class": 4, "params": {"K": 20.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.01},
+            "gains": {"kp": 0.9, "kd": 0.1, "derivative_filter_hz": 12.0}}
+    model = tmp_path / "lateral" / "a04"
+    model.mkdir(parents=True)
+    (model / "meta.json").write_text("{}")
+    scn.identification = replace(scn.identification, method="auto", model_dir=str(tmp_path))
+    beta, ctx = _lateral_networks(scn, roll)
+    assert beta == load_grid("lateral").lateral(4).beta
+    assert ctx["attitude_class"] == 4
+    assert ctx["attitude"]["att_kp"] == pytest.approx(0.9 * 20.0) and ctx["attitude"]["tau_in"] == 0.01
+    assert _lateral_networks(replace(scn, identification=replace(scn.identification, method="mrft-df")),
+                             roll) == (None, None)
+    assert _lateral_networks(scn, {**roll, "class": 5}) == (None, None)  # no lateral/a05
