@@ -5,7 +5,8 @@ Kalman filter), identification, tuning, then the step or disturbance test.
 Prints a table beside the paper's Tables I/II, writes a Rerun recording
 (``--save FILE.rrd``; default ``<scenario>.rrd`` in the current folder) with
 the run's arrays beside it (``FILE.run.npz``, what ``uavsim replay FILE.rrd``
-reads back), and with ``--json`` prints one JSON object on stdout.
+reads back), and with ``--json`` prints one JSON object on stdout
+(``{"loops": {"altitude": {...}, "lateral": {..., "loop": "lateral_y"}}, "test": {...}}``).
 
     uavsim scenario run scenarios/normal-camera-kf.toml --json --save normal-kf.rrd
 
@@ -23,6 +24,7 @@ import sys
 from pathlib import Path
 
 from uavsim.cli._common import eprint, print_json
+from uavsim.lumped.params import LATERAL_LOOPS
 
 
 def register(subparsers) -> None:
@@ -61,6 +63,9 @@ def main(args: argparse.Namespace) -> int:
     md = "\n\n".join(f"{loop}:\n" + format_table(table_rows([result], loop), loop) for loop in result["loops"])
     write_recording(result, save, md)
     public = {k: v for k, v in result.items() if not k.startswith("_")}
+    # the JSON names the lateral loop "lateral" (the contract), with its axis inside
+    public["loops"] = {("lateral" if k in LATERAL_LOOPS else k): ({**v, "loop": k} if k in LATERAL_LOOPS else v)
+                       for k, v in result["loops"].items()}
     public["recording"] = str(save)
     if args.json:
         print_json(public)
