@@ -159,13 +159,17 @@ def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
 
 def nearest_class(params: list[LumpedParams], table: dict[str, Any]) -> np.ndarray:
     """Per process, the class nearest to it in the log parameter box (each axis scaled to [0, 1]), (m,)."""
-    fam = params[0].family
     keys = ("T_prop", "T1", "tau")
+    return _nearest_in_box(params[0].family, keys, np.array([[getattr(p, k) for k in keys] for p in params]), table)
+
+
+def _nearest_in_box(fam: str, keys: tuple[str, ...], P: np.ndarray, table: dict[str, Any]) -> np.ndarray:
+    """Row of ``table`` nearest to each row of ``P`` (m, len(keys)) in the family's log box, each axis on [0, 1]."""
     lo = np.log([RANGES[fam][k][0] for k in keys])
     hi = np.log([RANGES[fam][k][1] for k in keys])
-    P = (np.log([[getattr(p, k) for k in keys] for p in params]) - lo) / (hi - lo)
+    Pn = (np.log(P) - lo) / (hi - lo)
     C = (np.log(np.column_stack([np.asarray(table[k], dtype=np.float64) for k in keys])) - lo) / (hi - lo)
-    return np.argmin(((P[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
+    return np.argmin(((Pn[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
 
 
 def _rel_err(K_hat: np.ndarray, K: np.ndarray) -> dict[str, float]:
@@ -362,11 +366,7 @@ def evaluate_offgrid_lateral(model_root: str | os.PathLike, recipe_path: str | o
         det_all.append(d)
         gm = measured_point_gains(resp, rper, sub.beta, sub.pm_deg, gain_scale=sub.gain_scale)
         det_mp.append(det_of(gm["kp"], gm["kd"], gm["N"]))
-        lo = np.log([box["T2"][0], box["tau"][0]])
-        hi = np.log([box["T2"][1], box["tau"][1]])
-        P = (np.log(np.column_stack([T2[idx], tau[idx]])) - lo) / (hi - lo)
-        C = (np.log(np.column_stack([np.asarray(table["T2"], float), np.asarray(table["tau"], float)])) - lo) / (hi - lo)
-        near = np.argmin(((P[:, None, :] - C[None]) ** 2).sum(-1), axis=1)
+        near = _nearest_in_box("lateral", ("T2", "tau"), np.column_stack([T2[idx], tau[idx]]), table)
         go = lateral_gains(fit_response_lateral(resp, rper, near, table, att), sub.rule)
         det_or.append(det_of(go["kp"], go["kd"], go["N"]))
         per_class[a] = {"n": n_per, "n_identified": int(idx.size), "deterioration": summarize_deterioration(d)}

@@ -150,10 +150,15 @@ def fit_response(response: np.ndarray, response_period: np.ndarray, cls: np.ndar
     Tp, T1, tau_c = (np.asarray(table[k], dtype=np.float64)[cls] for k in ("T_prop", "T1", "tau"))
     ph0 = -0.5 * np.pi - np.arctan(w * Tp) - np.arctan(w * T1)  # unwrapped phase of G0
     mag0 = 1.0 / (w * np.hypot(1.0, w * Tp) * np.hypot(1.0, w * T1))
-    ph_c = ph0 - w * tau_c
+    return {"K": np.abs(G) / mag0, "T_prop": Tp, "T1": T1, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c}
+
+
+def _fitted_delay(G: np.ndarray, ph0: np.ndarray, w: np.ndarray, tau_class: np.ndarray) -> np.ndarray:
+    """Delay (s, >= 0) that turns a delay-free model of unwrapped phase ``ph0`` into the measured ``G``,
+    the measured phase taken on the branch nearest the class's own (``ph0 - w tau_class``)."""
+    ph_c = ph0 - w * tau_class
     ph_m = ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
-    return {"K": np.abs(G) / mag0, "T_prop": Tp, "T1": T1, "tau": np.maximum((ph0 - ph_m) / w, 0.0),
-            "tau_class": tau_c}
+    return np.maximum((ph0 - ph_m) / w, 0.0)
 
 
 def waveform_scores(cls: np.ndarray, response: np.ndarray, response_period: np.ndarray, harmonics_y: np.ndarray,
@@ -283,9 +288,7 @@ def fit_response_lateral(response: np.ndarray, response_period: np.ndarray, cls:
     G0 = Tatt / (1j * w * (1j * w * T2 + 1.0))
     # unwrapped: the closed attitude loop lags less than pi at the lateral cycle's frequency
     ph0 = -0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt)
-    ph_c = ph0 - w * tau_c
-    ph_m = ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
-    return {"K": np.abs(G) / np.abs(G0), "T2": T2, "tau": np.maximum((ph0 - ph_m) / w, 0.0), "tau_class": tau_c, **a}
+    return {"K": np.abs(G) / np.abs(G0), "T2": T2, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c, **a}
 
 
 def lateral_gains(model: dict[str, np.ndarray], rule) -> dict[str, np.ndarray]:
@@ -405,15 +408,20 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
         "network_class": int(net_cls[0]),
         "params": params,
         "gains": gains,
-        "oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
-                        "start": f.start, "stop": f.stop},
         "softmax_top": float(p[int(net_cls[0])]),
         "softmax_class": float(p[c]),
         "class_params": {k: float(tab[k][c]) for k in ("T_prop", "T1", "tau") if k in tab},
         "gains_measured_point": {k: float(gm[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
-        "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
-                     "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
+        **_cycle_info(f),
     }
+
+
+def _cycle_info(f) -> dict[str, Any]:
+    """The answer's ``oscillation`` and ``response`` entries from ``CycleFeatures``."""
+    return {"oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
+                            "start": f.start, "stop": f.stop},
+            "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
+                         "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}}
 
 
 def period_in_grid(period: np.ndarray, table: dict[str, Any]) -> np.ndarray:
@@ -464,13 +472,10 @@ def _identify_lateral(f, net_cls: np.ndarray, act: np.ndarray, meta: dict[str, A
         "loop": meta["loop"], "class": c, "network_class": c, "attitude_class": att.get("att_class"),
         "params": params, "gains": {k: float(g[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
         "attitude": {k: att[k] for k in ("att_kp", "att_kd", "att_filter_hz")},
-        "oscillation": {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles,
-                        "start": f.start, "stop": f.stop},
         "softmax_top": float(p[c]), "softmax_class": float(p[c]),
         "class_params": {"T2": float(tab["T2"][c]), "tau": float(tab["tau"][c])},
         "gains_measured_point": {k: float(gm[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
-        "response": {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
-                     "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles},
+        **_cycle_info(f),
     }
 
 
