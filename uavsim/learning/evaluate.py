@@ -46,7 +46,7 @@ from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
 
 __all__ = ["OffGridSpec", "evaluate_heldout", "random_processes", "pipeline_gains", "class_gains", "amplitude_gain",
-           "closed_loop_deterioration", "evaluate_offgrid", "evaluate_offgrid_lateral", "summarize_deterioration"]
+           "RuleReference", "closed_loop_deterioration", "evaluate_offgrid", "evaluate_offgrid_lateral", "summarize_deterioration"]
 
 
 @dataclass
@@ -124,25 +124,55 @@ def amplitude_gain(cls: np.ndarray, amplitude: np.ndarray, h: float | np.ndarray
     return (np.asarray(amplitude, float) / np.asarray(h, float)) / a_cls
 
 
+class RuleReference:
+    """The tuning rule applied to the true processes: the reference every picked PD is scored against.
+
+    The rule's gains and their step ISE are computed once; ``deterioration`` then scores any
+    number of picked gains on the same processes (one ISE evaluation each).
+
+    Parameters
+    ----------
+    family : str
+    rule : TuningRule (with its ``gain_scale`` for lateral sub-grids)
+    params : dict of (m,) arrays, the true processes as ``freq_response_batch`` takes them
+    """
+
+    def __init__(self, family: str, rule, params: dict[str, np.ndarray]):
+        from uavsim.lumped.ise import step_ise_batch
+
+        self.family, self.params = family, params
+        g = rule.gains_batch(family, **params)
+        self.kp, self.kd, self.omega = g["kp"], g["kd"], g["omega"]
+        self.q, self.stable = step_ise_batch(family, g["kp"], g["kd"], g["N"], g["omega"], return_stable=True,
+                                             **params)
+
+    def deterioration(self, kp: np.ndarray, kd: np.ndarray, N: np.ndarray) -> dict[str, np.ndarray]:
+        """``Q_picked``, ``Q_rule`` (output^2 s), ``deterioration`` (Q_picked / Q_rule - 1; inf if unstable),
+        ``stable`` (m,) bool and the rule's own ``kp_rule``, ``kd_rule`` (m,)."""
+        from uavsim.lumped.ise import step_ise_batch
+
+        q_pick, stable = step_ise_batch(self.family, kp, kd, N, self.omega, return_stable=True, **self.params)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            det = np.where(stable, q_pick / self.q - 1.0, np.inf)
+        return {"Q_picked": q_pick, "Q_rule": self.q, "deterioration": det, "stable": stable, "kp_rule": self.kp,
+                "kd_rule": self.kd}
+
+
+def _inner_reference(params: list[LumpedParams], beta: float, pm_deg: float) -> RuleReference:
+    from uavsim.tuning.rule import TuningRule
+
+    pa = {k: np.array([getattr(p, k) for p in params], float) for k in ("K", "T_prop", "T1", "tau")}
+    return RuleReference(params[0].family, TuningRule(beta, pm_deg), pa)
+
+
 def closed_loop_deterioration(params: list[LumpedParams], kp: np.ndarray, kd: np.ndarray, N: np.ndarray,
                               beta: float, pm_deg: float) -> dict[str, np.ndarray]:
     """Step-ISE deterioration of given PD gains against the rule's gains for each true process.
 
-    Returns ``Q_picked``, ``Q_rule`` (output^2 s), ``deterioration`` (Q_picked / Q_rule - 1; inf if
-    unstable), ``stable`` (m,) bool and the rule's own ``kp_rule``, ``kd_rule`` (m,).
+    Returns ``RuleReference.deterioration``'s dict. To score several gain sets on the same
+    processes, build one ``RuleReference`` instead (the rule's ISE is computed once).
     """
-    from uavsim.lumped.ise import step_ise_batch
-    from uavsim.tuning.rule import TuningRule
-
-    fam = params[0].family
-    pa = {k: np.array([getattr(p, k) for p in params], float) for k in ("K", "T_prop", "T1", "tau")}
-    rule = TuningRule(beta, pm_deg).gains_batch(fam, **pa)
-    q_rule = step_ise_batch(fam, rule["kp"], rule["kd"], rule["N"], rule["omega"], **pa)
-    q_pick, stable = step_ise_batch(fam, kp, kd, N, rule["omega"], return_stable=True, **pa)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        det = np.where(stable, q_pick / q_rule - 1.0, np.inf)
-    return {"Q_picked": q_pick, "Q_rule": q_rule, "deterioration": det, "stable": stable, "kp_rule": rule["kp"],
-            "kd_rule": rule["kd"]}
+    return _inner_reference(params, beta, pm_deg).deterioration(kp, kd, N)
 
 
 def summarize_deterioration(det: np.ndarray) -> dict[str, float]:
@@ -236,7 +266,8 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     cls = select_class(act, resp[idx], rper[idx], hy[idx], hu[idx], table, fam)
     g = pipeline_gains(cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     used = [params[i] for i in idx]
-    cl = closed_loop_deterioration(used, g["kp"], g["kd"], g["N"], grid.beta, grid.pm_deg)
+    ref = _inner_reference(used, grid.beta, grid.pm_deg)
+    cl = ref.deterioration(g["kp"], g["kd"], g["N"])
     K_true = np.array([p.K for p in used])
     # same run, the class-table lookup (the authors' tuning): the class's gains over K_hat from the
     # amplitude (their recovery) or from the response at the measured frequency
@@ -246,7 +277,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
         gl = class_gains(cls, K_hat, table)
         lookups[name] = {
             "deterioration": summarize_deterioration(
-                closed_loop_deterioration(used, gl["kp"], gl["kd"], gl["N"], grid.beta, grid.pm_deg)["deterioration"]),
+                ref.deterioration(gl["kp"], gl["kd"], gl["N"])["deterioration"]),
             "K_rel_err": _rel_err(K_hat, K_true), "kp_rel_err": _rel_err(gl["kp"], cl["kp_rule"])}
     # normalized J of the predicted class's controller on the true process (no gain error)
     gi = np.asarray(table.get("grid_index", np.arange(len(table["kp"]))), dtype=np.int64)
@@ -259,17 +290,17 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     det = cl["deterioration"]
     # same run, the network's first choice with no harmonic selection
     gn = pipeline_gains(net_cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
-    det_net = closed_loop_deterioration(used, gn["kp"], gn["kd"], gn["N"], grid.beta, grid.pm_deg)["deterioration"]
+    det_net = ref.deterioration(gn["kp"], gn["kd"], gn["N"])["deterioration"]
     # same-run baseline: the class of nearest exact period, fitted the same way (what a network must beat)
     near = np.argmin(np.abs(np.log(period[idx])[:, None] - np.log(np.asarray(table["period"], float))[None, :]), axis=1)
     gb = pipeline_gains(near, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
-    det_base = closed_loop_deterioration(used, gb["kp"], gb["kd"], gb["N"], grid.beta, grid.pm_deg)["deterioration"]
+    det_base = ref.deterioration(gb["kp"], gb["kd"], gb["N"])["deterioration"]
     # same run, an oracle classifier: the class nearest to the true process in the log box
     go = pipeline_gains(nearest_class(used, table), resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
-    det_or = closed_loop_deterioration(used, go["kp"], go["kd"], go["N"], grid.beta, grid.pm_deg)["deterioration"]
+    det_or = ref.deterioration(go["kp"], go["kd"], go["N"])["deterioration"]
     # same run, no network and no model: the rule's constants at the measured point
     gm = measured_point_gains(resp[idx], rper[idx], grid.beta, grid.pm_deg)
-    det_mp = closed_loop_deterioration(used, gm["kp"], gm["kd"], gm["N"], grid.beta, grid.pm_deg)["deterioration"]
+    det_mp = ref.deterioration(gm["kp"], gm["kd"], gm["N"])["deterioration"]
     bands = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.15), (0.15, 0.2001)]
     by_noise = {}
     for lo, hi in bands:
@@ -322,7 +353,6 @@ def evaluate_offgrid_lateral(model_root: str | os.PathLike, recipe_path: str | o
         lateral_gains,
         resolve_model_dir,
     )
-    from uavsim.lumped.ise import step_ise_batch
 
     t0 = time.perf_counter()
     recipe = load_recipe(recipe_path)
@@ -350,16 +380,11 @@ def evaluate_offgrid_lateral(model_root: str | os.PathLike, recipe_path: str | o
         truth = {"K": Ks[idx], "T2": T2[idx], "tau": tau[idx], **{k: np.full(idx.size, v) for k, v in (
             ("T_prop", att["T_prop"]), ("T1", att["T1"]), ("tau_in", att["tau_in"]), ("att_kp", att["att_kp"]),
             ("att_kd", att["att_kd"]), ("att_N", 2 * np.pi * att["att_filter_hz"]))}}
-        rule = sub.rule.gains_batch("lateral", **truth)
-        q_rule, ok_rule = step_ise_batch("lateral", rule["kp"], rule["kd"], rule["N"], rule["omega"],
-                                         return_stable=True, **truth)
-        rule_unstable += int(np.sum(~ok_rule))
+        ref = RuleReference("lateral", sub.rule, truth)
+        rule_unstable += int(np.sum(~ref.stable))
 
-        def det_of(kp, kd, N, truth=truth, rule=rule, q_rule=q_rule, ok_rule=ok_rule):
-            q, st = step_ise_batch("lateral", kp, kd, N, rule["omega"], return_stable=True, **truth)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                d = np.where(st, q / q_rule - 1.0, np.inf)
-            return d[ok_rule]
+        def det_of(kp, kd, N, ref=ref):
+            return ref.deterioration(kp, kd, N)["deterioration"][ref.stable]
 
         g = lateral_gains(fit_response_lateral(resp, rper, cls, table, att), sub.rule)
         d = det_of(g["kp"], g["kd"], g["N"])
