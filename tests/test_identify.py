@@ -241,3 +241,45 @@ def test_cycles_no_class_can_produce_are_refused():
     assert period_in_grid(per, table).tolist() == [False, True, True, True, False]
     with pytest.raises(NoOscillation, match=r"cycle period 0.2 s is outside .*0.5-1.2 s"):
         _check_period(0.2, table)
+
+
+def test_decide_gains_minimizes_expected_deterioration_by_time_simulation():
+    """``decide_gains`` against an independent computation: every candidate's model fitted to the
+    same measured point, its rule gains flown on every other model in a time-domain simulation
+    (``step_ise_time``), the expected deterioration (clipped at 1, weights from the fit scores)
+    minimized by hand. Fits of nearly equal score: the safest gains win even when they are not
+    the best fit's; one dominant fit: its own rule gains."""
+    from uavsim.learning.identify import decide_gains, fit_response, held_response, model_gains
+    from uavsim.lumped.params import LumpedParams
+    from uavsim.lumped.simulate import step_ise_time
+
+    # three models one cycle barely tells apart: T1 traded against the delay
+    tab = {"T_prop": np.array([0.03, 0.03, 0.03]), "T1": np.array([0.28, 0.6, 1.4]),
+           "tau": np.array([0.007, 0.003, 0.001])}
+    w = 9.0
+    s = 1j * w
+    G = 1.3 * np.exp(-s * 0.0066) / (s * (0.03 * s + 1) * (0.284 * s + 1))  # the true process, off-grid
+    resp = np.array([G * held_response(1.0, w, 200.0)])
+    per = np.array([2 * np.pi / w])
+    hy = np.ones((1, 7), complex)  # 6 usable harmonics
+    rule = (-0.73, 20.0)
+    mod = fit_response(np.repeat(resp, 3), np.repeat(per, 3), np.arange(3), tab, "altitude")
+    g = model_gains(mod, "altitude", *rule)
+    P = [LumpedParams("altitude", float(mod["K"][j]), float(mod["T_prop"][j]), float(mod["T1"][j]),
+                      float(mod["tau"][j])) for j in range(3)]
+    Q = np.array([[step_ise_time(P[j], float(g["kp"][i]), float(g["kd"][i]), float(g["N"][i]), 2e-4, 10.0)
+                   for j in range(3)] for i in range(3)])
+    R = np.clip(np.nan_to_num(Q / np.diag(Q)[None, :], nan=1e3, posinf=1e3), 1.0, 1e3)
+    picks = []
+    for order, ws in (([1, 0, 2], [1e-4, 1.05e-4, 1.1e-4]), ([1, 0, 2], [1e-4, 1e-2, 1e-2]),
+                      ([2, 1, 0], [1e-4, 1.02e-4, 1.04e-4])):
+        cand, ws = np.array([order]), np.array([ws])
+        d = decide_gains(cand, ws, hy, resp, per, tab, "altitude", *rule, top=3)
+        wt = np.exp(-(ws[0] - ws[0, 0]) / (ws[0, 0] / 6))
+        E = R[np.ix_(order, order)] @ (wt / wt.sum())
+        i = int(np.argmin(E))
+        assert d["rank"][0] == i and d["pick"][0] == order[i]
+        assert d["expected"][0] == pytest.approx(E[i], rel=0.02)
+        assert d["kp"][0] == pytest.approx(g["kp"][order[i]]) and d["kd"][0] == pytest.approx(g["kd"][order[i]])
+        picks.append(i)
+    assert picks[0] != 0 and picks[1] == 0  # near-equal fits: not the best fit; a dominant fit: its gains

@@ -7,8 +7,9 @@ Three views, from the cheapest to the one that matters:
 * **off-grid processes**: random processes drawn log-uniformly in the paper's
   box (not grid points), simulated in MuJoCo through the dataset path
   (``uavsim.data.generate.simulate_features``: same relay, noise, preprocessing);
-* **closed-loop criterion**: the gains the pipeline picks (the rule on the
-  model of the class ``select_class`` picks, fitted to the measured response) against the tuning rule applied to the *true*
+* **closed-loop criterion**: the gains identification answers
+  (``decide_gains``: the rule on one of the best-fitting models, the one whose
+  gains cost least over all of them) against the tuning rule applied to the *true*
   process: ISE deterioration ``Q(picked, G) / Q(rule(G), G) - 1`` of a unit step
   (``uavsim.lumped.ise.step_ise_batch``, exact delays); an unstable loop is
   ``inf`` and counted. This includes the gain-recovery error, which the
@@ -36,11 +37,12 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
 from uavsim.learning.identify import (
+    decide_gains,
     fit_response,
     measured_point_gains,
     model_gains,
     period_in_grid,
-    select_class,
+    rank_candidates,
 )
 from uavsim.learning.train import class_metrics, load_training_data
 from uavsim.lumped.params import RANGES, LumpedParams
@@ -202,6 +204,11 @@ def _nearest_in_box(fam: str, keys: tuple[str, ...], P: np.ndarray, table: dict[
     return np.argmin(((Pn[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
 
 
+def _pct(x: np.ndarray) -> list[float]:
+    """5th, 50th and 95th percentiles (empty without data)."""
+    return [float(v) for v in np.percentile(x, [5, 50, 95])] if len(x) else []
+
+
 def _rel_err(K_hat: np.ndarray, K: np.ndarray) -> dict[str, float]:
     """Median and p95 of ``|K_hat / K - 1|`` (empty without data)."""
     if not len(K):
@@ -223,8 +230,12 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     Returns
     -------
     dict: ``n``, ``n_rejected`` (no usable oscillation: not identified), ``seed``,
-    ``deterioration`` (``summarize_deterioration``; classes by ``select_class`` as identification
-    does), ``network_first_choice`` (the same with the network's argmax class),
+    ``deterioration`` (``summarize_deterioration`` of the gains identification answers,
+    ``decide_gains``), ``decision`` (how often it leaves the best fit; its gains over the best fit's
+    and over the rule's on the true process: 5/50/95th percentiles), ``best_fit`` (the rule on the
+    best harmonic fit, ``select_class``), ``best_fit_scaled`` (those gains times the decision's
+    median ratio: a plain detuning, the control), ``network_first_choice`` (the rule on the network's
+    argmax class),
     ``selection_changed`` (fraction where they differ), ``J`` (normalized J of the predicted class:
     mean, p95), ``K_rel_err`` (median, p95 of |K_hat / K - 1|; not a measure of the gains by
     itself: classes of one Omega level differ in gain normalization), ``kp_rel_err``,
@@ -263,11 +274,18 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     h = recipe.test.h
     fam = meta["loop"]
     net_cls, act = pred.predict(X[idx])
-    cls = select_class(act, resp[idx], rper[idx], hy[idx], hu[idx], table, fam)
+    cand, ws = rank_candidates(act, resp[idx], rper[idx], hy[idx], hu[idx], table, fam)
+    cls = cand[:, 0]
+    gd = decide_gains(cand, ws, hy[idx], resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     g = pipeline_gains(cls, resp[idx], rper[idx], table, fam, grid.beta, grid.pm_deg)
     used = [params[i] for i in idx]
     ref = _inner_reference(used, grid.beta, grid.pm_deg)
     cl = ref.deterioration(g["kp"], g["kd"], g["N"])
+    # identification's answer: the gains of least expected deterioration over the best fits
+    cd = ref.deterioration(gd["kp"], gd["kd"], gd["N"])
+    # control: the best fit's gains scaled by the decision's median gain ratio (a plain detuning)
+    scale = float(np.median(gd["kp"] / g["kp"])) if idx.size else 1.0
+    det_scaled = ref.deterioration(scale * g["kp"], scale * g["kd"], g["N"])["deterioration"]
     K_true = np.array([p.K for p in used])
     # same run, the class-table lookup (the authors' tuning): the class's gains over K_hat from the
     # amplitude (their recovery) or from the response at the measured frequency
@@ -305,12 +323,17 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
     by_noise = {}
     for lo, hi in bands:
         sel = (level[idx] >= lo) & (level[idx] < hi)
-        by_noise[f"{lo:.2f}-{min(hi, 0.2):.2f}"] = summarize_deterioration(det[sel])
+        by_noise[f"{lo:.2f}-{min(hi, 0.2):.2f}"] = summarize_deterioration(cd["deterioration"][sel])
     return {
         "model": str(model_dir), "recipe": str(recipe_path), "n": n, "n_identified": int(idx.size),
         "n_rejected": int(n - idx.size), "seed": seed, "K_range": list(K),
         "noise_level_max": float(np.max(level)) if level.size else 0.0,
-        "deterioration": summarize_deterioration(det),
+        "deterioration": summarize_deterioration(cd["deterioration"]),
+        "decision": {"changed": float(np.mean(gd["pick"] != cls)) if idx.size else 0.0,
+                     "kp_over_best_fit": _pct(gd["kp"] / g["kp"]), "kp_over_rule": _pct(gd["kp"] / cl["kp_rule"]),
+                     "kd_over_rule": _pct(gd["kd"] / cl["kd_rule"])},
+        "best_fit": summarize_deterioration(det),
+        "best_fit_scaled": {"scale": scale, **summarize_deterioration(det_scaled)},
         "network_first_choice": summarize_deterioration(det_net),
         "selection_changed": float(np.mean(cls != net_cls)) if idx.size else 0.0,
         "baseline_nearest_period": summarize_deterioration(det_base),

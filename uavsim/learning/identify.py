@@ -58,6 +58,7 @@ from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
            "fit_response", "model_gains", "measured_point_gains", "held_response", "waveform_scores", "select_class",
+           "rank_candidates", "decide_gains", "DECIDE_TOP",
            "lateral_context", "fit_response_lateral", "lateral_gains", "period_in_grid", "SATURATION_FRACTION",
            "SELECT_TOP", "PERIOD_RANGE"]
 
@@ -70,6 +71,8 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 PERIOD_RANGE = (0.75, 1.5)
 #: candidates (the network's most likely classes) that ``select_class`` weighs by the cycle's harmonics
 SELECT_TOP = 30
+#: best-fitting candidates over which ``decide_gains`` weighs the cost of each one's gains
+DECIDE_TOP = 8
 
 _predictors: dict[str, Predictor] = {}
 
@@ -205,6 +208,31 @@ def waveform_scores(cls: np.ndarray, response: np.ndarray, response_period: np.n
     return np.where(usable, err, 0.0).sum(axis=-1)
 
 
+def rank_candidates(scores: np.ndarray, response: np.ndarray, response_period: np.ndarray,
+                    harmonics_y: np.ndarray, harmonics_u: np.ndarray, table: dict[str, Any], family: str,
+                    top: int = SELECT_TOP, rate_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The network's ``top`` most likely classes, reordered by ``waveform_scores`` (best fit first).
+
+    Parameters
+    ----------
+    scores : (m, n_classes) network outputs (logits or probabilities: only their order is used)
+    others : as in ``waveform_scores``
+
+    Returns
+    -------
+    cand : (m, top) int classes, ws : (m, top) their scores (lower is better; inf where not finite).
+    Rows with a non-finite score keep the network's order.
+    """
+    scores = np.atleast_2d(np.asarray(scores))
+    cand = np.argsort(-scores, axis=1, kind="stable")[:, : max(1, int(top))]
+    ws = waveform_scores(cand, response, response_period, harmonics_y, harmonics_u, table, family, rate_hz)
+    good = np.all(np.isfinite(ws), axis=1)
+    order = np.where(good[:, None], np.argsort(np.where(np.isfinite(ws), ws, np.inf), axis=1, kind="stable"),
+                     np.arange(cand.shape[1])[None, :])
+    ws = np.where(np.isfinite(ws), ws, np.inf)
+    return np.take_along_axis(cand, order, axis=1), np.take_along_axis(ws, order, axis=1)
+
+
 def select_class(scores: np.ndarray, response: np.ndarray, response_period: np.ndarray, harmonics_y: np.ndarray,
                  harmonics_u: np.ndarray, table: dict[str, Any], family: str, top: int = SELECT_TOP,
                  rate_hz: float | None = None) -> np.ndarray:
@@ -219,12 +247,73 @@ def select_class(scores: np.ndarray, response: np.ndarray, response_period: np.n
     -------
     (m,) int classes. Rows whose harmonics are not finite keep the network's first choice.
     """
-    scores = np.atleast_2d(np.asarray(scores))
-    cand = np.argsort(-scores, axis=1, kind="stable")[:, : max(1, int(top))]
-    ws = waveform_scores(cand, response, response_period, harmonics_y, harmonics_u, table, family, rate_hz)
-    pick = cand[np.arange(len(cand)), np.argmin(np.where(np.isfinite(ws), ws, np.inf), axis=1)]
-    good = np.all(np.isfinite(ws), axis=1)
-    return np.where(good, pick, cand[:, 0])
+    return rank_candidates(scores, response, response_period, harmonics_y, harmonics_u, table, family, top,
+                           rate_hz)[0][:, 0]
+
+
+def decide_gains(cand: np.ndarray, ws: np.ndarray, harmonics_y: np.ndarray, response: np.ndarray,
+                 response_period: np.ndarray, table: dict[str, Any], family: str, beta: float, pm_deg: float,
+                 top: int = DECIDE_TOP, ise_points: int = 300) -> dict[str, np.ndarray]:
+    """PD gains of least expected deterioration over the models that explain the cycle.
+
+    The cycle rarely tells the best-fitting candidates apart (one ``Omega``
+    level's lags trade against the delay; their harmonics differ by a
+    percent), yet their rule gains differ, and too high a gain costs far more
+    than too low a one. So, like the J-weighted loss that trains the network,
+    choose the gains by their cost over the candidates: the ``top`` best
+    candidates of ``rank_candidates`` are fitted (``fit_response``) and tuned
+    (``model_gains``); ``R[i, j] = max(Q(g_i, m_j) / Q(g_j, m_j), 1)`` is the
+    deterioration of candidate ``i``'s gains on model ``j`` against the rule on
+    ``j`` (the grid's J, for fitted models: no credit for beating the rule;
+    unstable counts 1000); each model is weighted by its fit,
+    ``w_j ~ exp(-(s_j - s_0) / s2)`` with ``s2 = s_0 / n`` the noise per
+    usable harmonic the best fit leaves (``n`` harmonics); the gains of the
+    candidate of least ``sum_j w_j R[i, j]`` are the answer.
+
+    Parameters
+    ----------
+    cand, ws : (m, c) ``rank_candidates``' classes and scores, best first (c >= top)
+    harmonics_y : (m, H) complex, for the count of usable harmonics
+    response, response_period, table, family : as in ``fit_response``
+    beta, pm_deg : the rule's
+    top : candidates weighed
+    ise_points : frequency points of each ISE (``step_ise_batch``)
+
+    Returns
+    -------
+    dict of (m,) arrays: ``kp``, ``kd``, ``N`` (rad/s), ``derivative_filter_hz``, ``omega`` (rad/s) of the
+    chosen gains, ``pick`` (the class whose model they are the rule's gains of), ``rank`` (its place among
+    the candidates, 0 = best fit) and ``expected`` (its expected deterioration, ``sum_j w_j R[i, j]``).
+    Rows whose scores are not finite take the best fit's gains.
+    """
+    from uavsim.lumped.ise import step_ise_batch
+
+    cand = np.atleast_2d(np.asarray(cand, dtype=np.int64))[:, : max(1, int(top))]
+    sc = np.atleast_2d(np.asarray(ws, dtype=np.float64))[:, : cand.shape[1]]
+    m, c = cand.shape
+    rep = lambda a: np.repeat(np.asarray(a), c)  # noqa: E731
+    mod = fit_response(rep(response), rep(response_period), cand.ravel(), table, family)
+    g = model_gains(mod, family, beta, pm_deg)
+    i_, j_ = (a.ravel() for a in np.meshgrid(np.arange(c), np.arange(c), indexing="ij"))
+    gi = (np.arange(m)[:, None] * c + i_[None]).ravel()
+    mj = (np.arange(m)[:, None] * c + j_[None]).ravel()
+    with np.errstate(all="ignore"):
+        Q = step_ise_batch(family, g["kp"][gi], g["kd"][gi], g["N"][gi], g["omega"][mj], n=ise_points,
+                           **{k: mod[k][mj] for k in ("K", "T_prop", "T1", "tau")}).reshape(m, c, c)
+        R = Q / np.diagonal(Q, axis1=1, axis2=2)[:, None, :]
+    R = np.where(np.isfinite(R), np.clip(R, 1.0, 1e3), 1e3)
+    n_used = np.maximum(np.sum(np.isfinite(np.asarray(harmonics_y)[:, 1:]), axis=1), 1)
+    s2 = sc[:, :1] / n_used[:, None] + 1e-300
+    with np.errstate(all="ignore"):
+        w = np.exp(-(sc - sc[:, :1]) / s2)
+    ok = np.all(np.isfinite(w), axis=1) & np.all(np.isfinite(sc), axis=1)
+    w = np.where(ok[:, None], w, np.eye(1, c))
+    w /= w.sum(axis=1, keepdims=True)
+    E = np.einsum("mj,mij->mi", w, R)
+    rank = np.where(ok, np.argmin(E, axis=1), 0)
+    k = np.arange(m) * c + rank
+    out = {n: np.asarray(g[n], dtype=np.float64)[k] for n in ("kp", "kd", "N", "derivative_filter_hz", "omega")}
+    return {**out, "pick": cand[np.arange(m), rank], "rank": rank, "expected": E[np.arange(m), rank]}
 
 
 def model_gains(model: dict[str, np.ndarray], family: str, beta: float, pm_deg: float) -> dict[str, np.ndarray]:
@@ -368,10 +457,12 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
 
     Returns
     -------
-    dict with ``class`` (``select_class``), ``network_class`` (the network's own first choice),
-    ``params`` (the identified model: K, T_prop, T1, tau), ``gains``
-    (kp, kd, derivative_filter_hz: the rule on that model), ``class_params`` (the class's own
-    T_prop, T1, tau), ``gains_measured_point`` (``measured_point_gains``, no model),
+    dict with ``class`` (the best harmonic fit, ``select_class``), ``network_class`` (the network's own
+    first choice), ``params`` (the identified model: K, T_prop, T1, tau), ``gains`` (kp, kd,
+    derivative_filter_hz: ``decide_gains``, the rule on the model of ``gains_class``, one of the
+    ``DECIDE_TOP`` best fits, with ``gains_expected_deterioration`` over them), ``gains_best_fit``
+    (the rule on ``params``), ``class_params`` (the class's own T_prop, T1, tau),
+    ``gains_measured_point`` (``measured_point_gains``, no model),
     ``oscillation`` (period s, amplitude output units, n_cycles, start, stop) and
     ``response`` (the measured fundamental response).
     """
@@ -390,28 +481,33 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     net_cls, act = predictor.predict(f.x)
     if fam == "lateral":
         return _identify_lateral(f, net_cls, act, meta, lateral)
-    cls_arr = select_class(act, np.array([f.response]), np.array([f.response_period]), f.harmonics_y[None],
-                           f.harmonics_u[None], tab, fam)
+    resp, rper = np.array([f.response]), np.array([f.response_period])
+    cand, ws = rank_candidates(act, resp, rper, f.harmonics_y[None], f.harmonics_u[None], tab, fam)
+    cls_arr = cand[:, 0]
     c = int(cls_arr[0])
-    model = fit_response(np.array([f.response]), np.array([f.response_period]), cls_arr, tab, fam)
+    model = fit_response(resp, rper, cls_arr, tab, fam)
     if not (np.isfinite(model["K"][0]) and model["K"][0] > 0):
         raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
     rule = rule_of(meta)
-    g = model_gains(model, fam, *rule)
+    g_fit = model_gains(model, fam, *rule)
+    g = decide_gains(cand, ws, f.harmonics_y[None], resp, rper, tab, fam, *rule)
     params = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "tau")}
-    gains = {k: float(g[k][0]) for k in ("kp", "kd", "derivative_filter_hz")}
-    gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), *rule)
+    keys = ("kp", "kd", "derivative_filter_hz")
+    gm = measured_point_gains(resp, rper, *rule)
     p = _softmax(act[0])
     return {
         "loop": meta["loop"],
         "class": c,
         "network_class": int(net_cls[0]),
         "params": params,
-        "gains": gains,
+        "gains": {k: float(g[k][0]) for k in keys},
+        "gains_class": int(g["pick"][0]),
+        "gains_expected_deterioration": float(g["expected"][0]) - 1.0,
+        "gains_best_fit": {k: float(g_fit[k][0]) for k in keys},
         "softmax_top": float(p[int(net_cls[0])]),
         "softmax_class": float(p[c]),
         "class_params": {k: float(tab[k][c]) for k in ("T_prop", "T1", "tau") if k in tab},
-        "gains_measured_point": {k: float(gm[k][0]) for k in ("kp", "kd", "derivative_filter_hz")},
+        "gains_measured_point": {k: float(gm[k][0]) for k in keys},
         **_cycle_info(f),
     }
 
