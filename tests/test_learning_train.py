@@ -155,6 +155,15 @@ def test_export_folds_batchnorm_exactly(tmp_path):
         want = net.eval()(x).numpy()
     export_model(net, {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}, tmp_path)
     pred = Predictor(tmp_path)
+    assert pred.numpy_layers is not None  # the numpy matmul chain, not the TorchScript call
     got = pred.activations(x.numpy())
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+    with torch.inference_mode():
+        np.testing.assert_allclose(got, pred.module(x).numpy(), rtol=1e-5, atol=1e-5)
+    net0 = IdentNet(NetConfig(2, 40, 5, hidden=[16], period_features=0))
+    export_model(net0, {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}, tmp_path / "p0")
+    p0 = Predictor(tmp_path / "p0")
+    with torch.no_grad():
+        np.testing.assert_allclose(p0.activations(x.numpy()), net0.eval()(x).numpy(), rtol=1e-5, atol=1e-5)
+    assert p0.numpy_layers is not None and p0.numpy_layers["rbf"] is None
     assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in net.fold_batchnorm().modules())

@@ -3,16 +3,18 @@
 One identification is what ``uavsim identify`` does after reading the session:
 preprocessing of a relay run (``uavsim.data.preprocess.features``: edges, last
 cycle, normalization, fundamental response) plus the exported network
-(``Predictor``, TorchScript) on one input, plus the model fit and the tuning
-rule. The goal (issue 6) is on preprocessing plus network
+(``Predictor``: the folded weights of the TorchScript file run as a numpy
+matmul chain) on one input, plus the candidates' harmonic ranking, model fits
+and the gain decision (``decide_gains``). The goal (issue 6) is on preprocessing plus network
 (``preprocess_plus_network``); the whole identification is reported beside
 it. Each is timed ``--reps`` times on a 10 s,
 200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
 with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
 
 The same-run baseline is a bare numpy float32 forward pass of the same layer
-sizes (three matmuls and two ReLUs, no BatchNorm): the floor an implementation
-of this network can reach on this machine. The table gives median and p95 (ms)
+sizes (three matmuls and two ReLUs, no BatchNorm, no bias, no period
+features): the floor an implementation of this network can reach on this
+machine; the network stage is that plus the period features and biases. The table gives median and p95 (ms)
 of each stage and the ratio of the whole identification to the baseline.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 uavsim bench infer --json
