@@ -283,3 +283,38 @@ def test_decide_gains_minimizes_expected_deterioration_by_time_simulation():
         assert d["kp"][0] == pytest.approx(g["kp"][order[i]]) and d["kd"][0] == pytest.approx(g["kd"][order[i]])
         picks.append(i)
     assert picks[0] != 0 and picks[1] == 0  # near-equal fits: not the best fit; a dominant fit: its gains
+
+
+def test_phase_lead_of_relay_cycles_and_early_switching():
+    """A relay at beta puts an exact lumped loop at ``arg G = -pi + asin(beta)`` (sampled at 200 Hz:
+    within a few degrees); a relay that switches earlier (here: beta 0.3 where -0.73 was asked) leads
+    by what asin says, and identification refuses it as switched by noise."""
+    from types import SimpleNamespace
+
+    from uavsim.data.preprocess import NoOscillation, features
+    from uavsim.learning.identify import PHASE_LEAD_MAX_DEG, _check_phase, phase_lead
+    from uavsim.lumped.simulate import simulate_relay_batch
+
+    leads = {}
+    for b in (-0.73, 0.3):
+        r = simulate_relay_batch("altitude", b, 1.0, 0.005, 3000, K=np.full(2, 1.5), T_prop=np.array([0.05, 0.1]),
+                                 T1=np.array([0.4, 1.2]), tau=np.array([0.01, 0.03]))
+        for j in range(2):
+            f = features(-r["e"][j], r["u"][j], 200.0, 1.0, 0.0, 3000)
+            leads[(b, j)] = phase_lead(f.response, f.response_period, -0.73)
+            if b == -0.73:
+                _check_phase(f, -0.73)
+            else:
+                with pytest.raises(NoOscillation, match="switched early"):
+                    _check_phase(f, -0.73)
+    want = np.degrees(np.arcsin(0.3) - np.arcsin(-0.73))  # 64.3 deg
+    for j in range(2):
+        assert abs(leads[(-0.73, j)]) < 6.0
+        assert leads[(0.3, j)] == pytest.approx(want, abs=6.0)
+    assert want > PHASE_LEAD_MAX_DEG
+    # the analytic case: a response of known phase
+    G = np.exp(1j * (-np.pi + np.arcsin(-0.73) + np.radians(40.0)))
+    from uavsim.learning.identify import held_response
+
+    assert phase_lead(G * held_response(1.0, 2 * np.pi / 0.5, 200.0), 0.5, -0.73) == pytest.approx(40.0)
+    _check_phase(SimpleNamespace(response=1j, response_period=0.5), None)  # no beta: no check

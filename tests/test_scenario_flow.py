@@ -120,9 +120,9 @@ def test_cli_json(tmp_path, capsys, monkeypatch):
 
 @pytest.mark.slow
 def test_camera_trends():
-    """The paper's trends that the README says are reproduced, on the medians of 5 seeds per scenario:
-    without KF more delay and lower gains (each sensor), with KF similar gains. (Event beating normal
-    without KF is not reproduced: the README says so and nothing here asserts it.)"""
+    """The paper's four Table I trends on the medians of 5 seeds per scenario: without KF more delay
+    and lower gains (each sensor), the event camera's step ISE below the normal camera's, with KF
+    similar gains."""
     from uavsim.scenario.trends import camera_trends
 
     files = sorted(SCEN.glob("*-camera-*.toml"))
@@ -132,6 +132,7 @@ def test_camera_trends():
         assert t["delay_larger_without_kf"][cam]["median"], cam
         assert t["gains_lower_without_kf"][cam]["median"], cam
     assert t["similar_gains_with_kf"]["median"]
+    assert t["event_beats_normal_without_kf"]["median"]
 
 
 @pytest.mark.slow
@@ -180,3 +181,18 @@ def test_lateral_uses_the_roll_class_network_or_says_why(tmp_path):
     assert _lateral_networks(replace(scn, identification=replace(scn.identification, method="mrft-df")),
                              roll) == (None, None)
     assert _lateral_networks(scn, {**roll, "class": 5}) == (None, None)  # no lateral/a05
+
+
+def test_relay_faster_than_every_class_is_noise_switched():
+    """A cycle faster than 0.75 x the grid's fastest class is named (and re-run by the flow); slower is
+    not; a lateral loop without its attitude class's sub-grid is not judged."""
+    from uavsim.scenario.flow import _faster_than_grid
+    from uavsim.tuning.grid import load_grid
+
+    P = load_grid("altitude").period
+    assert "faster than any class" in _faster_than_grid(0.5 * P.min(), "altitude", None)
+    assert _faster_than_grid(0.8 * P.min(), "altitude", None) is None
+    sub = load_grid("lateral").lateral(4).period
+    assert _faster_than_grid(0.5 * sub.min(), "lateral_y", {"attitude_class": 4}) is not None
+    assert _faster_than_grid(0.5 * sub.min(), "lateral_y", None) is None
+    assert _faster_than_grid(float("nan"), "altitude", None) is None

@@ -37,11 +37,13 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
 from uavsim.learning.identify import (
+    PHASE_LEAD_MAX_DEG,
     decide_gains,
     fit_response,
     measured_point_gains,
     model_gains,
     period_in_grid,
+    phase_lead,
     rank_candidates,
 )
 from uavsim.learning.train import class_metrics, load_training_data
@@ -204,6 +206,12 @@ def _nearest_in_box(fam: str, keys: tuple[str, ...], P: np.ndarray, table: dict[
     return np.argmin(((Pn[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
 
 
+def _phase_ok(resp: np.ndarray, rper: np.ndarray, ok: np.ndarray, beta: float) -> np.ndarray:
+    """(m,) bool: the cycles identification does not refuse as switched by noise (``phase_lead``)."""
+    return np.array([not k or phase_lead(r, q, beta) <= PHASE_LEAD_MAX_DEG for r, q, k in zip(resp, rper, ok,
+                                                                                                   strict=True)])
+
+
 def _pct(x: np.ndarray) -> list[float]:
     """5th, 50th and 95th percentiles (empty without data)."""
     return [float(v) for v in np.percentile(x, [5, 50, 95])] if len(x) else []
@@ -270,6 +278,7 @@ def evaluate_offgrid(model_dir: str | os.PathLike, recipe_path: str | os.PathLik
             print(f"off-grid: simulated {min(i + chunk, n)}/{n} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     X, period, amp, ok, level, resp, rper, hy, hu = (np.concatenate(v) for v in zip(*parts, strict=True))
     ok &= period_in_grid(np.nan_to_num(period), table)  # identification refuses the others
+    ok &= _phase_ok(resp, rper, ok, grid.beta)
     idx = np.flatnonzero(ok)
     h = recipe.test.h
     fam = meta["loop"]
@@ -394,7 +403,8 @@ def evaluate_offgrid_lateral(model_root: str | os.PathLike, recipe_path: str | o
                                tau_in=att["tau_in"], att_kp=att["att_kp"], att_kd=att["att_kd"],
                                att_filter_hz=att["att_filter_hz"]) for i in range(n_per)]
         X, period, _, ok, m = simulate_features(params, _replace(recipe, att_classes=(a,)), seed + 1000 * a)
-        idx = np.flatnonzero(ok & period_in_grid(np.nan_to_num(period), table))
+        ok = ok & period_in_grid(np.nan_to_num(period), table)
+        idx = np.flatnonzero(ok & _phase_ok(m["response"], m["response_period"], ok, sub.beta))
         if idx.size == 0:
             per_class[a] = {"n": n_per, "n_identified": 0}
             continue

@@ -33,8 +33,8 @@ lags' local shape. ``uavsim.learning.evaluate`` reports both, in one run.
 
 A session without a usable oscillation (too short for two cycles, no
 switching, a relay command that is not +-h, a flat or saturated output, a
-period no class of the grid comes near: the relay switching on noise) is an
-error (``NoOscillation``, a ``UserError``), never a guess.
+period no class of the grid comes near or a phase the relay cannot have put
+it at: the relay switching on noise) is an error (``NoOscillation``, a ``UserError``), never a guess.
 
     from uavsim.learning.identify import identify_session, write_model
     ans = identify_session("scenarios/sessions/altitude-npmrft", model_dir="training/runs/small")
@@ -58,7 +58,7 @@ from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
            "fit_response", "model_gains", "measured_point_gains", "held_response", "waveform_scores", "select_class",
-           "rank_candidates", "decide_gains", "DECIDE_TOP",
+           "rank_candidates", "decide_gains", "DECIDE_TOP", "phase_lead", "PHASE_LEAD_MAX_DEG",
            "lateral_context", "fit_response_lateral", "lateral_gains", "period_in_grid", "SATURATION_FRACTION",
            "SELECT_TOP", "PERIOD_RANGE"]
 
@@ -69,6 +69,9 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 #: class period: NP-MRFT lengthens cycles (up to ~1.3x off-grid at 20% noise) but never halves them,
 #: which a relay switching on noise does
 PERIOD_RANGE = (0.75, 1.5)
+#: a cycle lagging more than this (deg) less than the relay's phase was switched by noise (``phase_lead``);
+#: NP-MRFT's own cycles lead by up to 19 deg on the off-grid altitude sets (200 Hz sampling, noise to 20% of a0)
+PHASE_LEAD_MAX_DEG = 30.0
 #: candidates (the network's most likely classes) that ``select_class`` weighs by the cycle's harmonics
 SELECT_TOP = 30
 #: best-fitting candidates over which ``decide_gains`` weighs the cost of each one's gains
@@ -478,6 +481,7 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     tab = meta["classes"]
     fam = meta["loop"]
     _check_period(f.period, tab)
+    _check_phase(f, meta.get("beta") if beta is None else beta)
     net_cls, act = predictor.predict(f.x)
     if fam == "lateral":
         return _identify_lateral(f, net_cls, act, meta, lateral)
@@ -534,6 +538,33 @@ def _check_period(period: float, table: dict[str, Any]) -> None:
         P = np.asarray(table["period"], dtype=np.float64)
         raise NoOscillation(f"cycle period {period:.3g} s is outside what the grid's classes give ({P.min():.3g}-"
                             f"{P.max():.3g} s): the relay switched on noise, or the process is outside the grid's box")
+
+
+def phase_lead(response: complex, response_period: float, beta: float, rate_hz: float | None = None) -> float:
+    """How far (deg) the measured response lags less than a relay at ``beta`` puts it, ``arg G - (-pi + asin beta)``.
+
+    A relay test puts the loop where ``arg G(jw) = -pi + asin(beta)`` (NP-MRFT's
+    observation window and ``a_n`` switch later, so more lag; sampling moves it by a
+    few degrees). A cycle that lags clearly less was switched early: by noise, and then
+    the "response" ``Y1 / (h U1)`` is partly the noise's correlation with the relay.
+    """
+    from uavsim.data.preprocess import INPUT_RATE_HZ
+
+    w = 2.0 * math.pi / float(response_period)
+    ph = float(np.angle(complex(response) / held_response(1.0, w, rate_hz or INPUT_RATE_HZ)))
+    ph = ph - 2.0 * math.pi if ph > 0 else ph  # a relay cycle lags between pi/2 and 2 pi
+    return math.degrees(ph - (-math.pi + math.asin(float(beta))))
+
+
+def _check_phase(f, beta: float | None) -> None:
+    from uavsim.data.preprocess import NoOscillation
+
+    if beta is None:
+        return
+    lead = phase_lead(f.response, f.response_period, beta)
+    if lead > PHASE_LEAD_MAX_DEG:
+        raise NoOscillation(f"the cycle lags {lead:.0f} deg less than a relay at beta={beta:g} puts it: the relay "
+                            "switched early, on noise")
 
 
 def _softmax(a: np.ndarray) -> np.ndarray:

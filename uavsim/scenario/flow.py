@@ -188,7 +188,7 @@ def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, wor
             tau_obs, a_n = recommend(est, beta, T0)
             capped = True
             continue
-        why = _unsteady(res, h)
+        why = _unsteady(res, h, beta) or _faster_than_grid(T0, loop, lateral)
         if why is None or len(retries) >= A_N_RETRIES:
             break
         # beta caps tau_obs below the noise period: noise extrema pass the observation window and
@@ -209,15 +209,47 @@ def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, wor
     return ident
 
 
-def _unsteady(res: VisionResult, h: float) -> str | None:
-    """Why the relay run's last cycles are not a steady oscillation (``preprocess.features``), or None."""
+def _unsteady(res: VisionResult, h: float, beta: float | None = None) -> str | None:
+    """Why the relay run's last cycles are not a steady relay oscillation, or None.
+
+    ``preprocess.features`` must accept them, and with ``beta`` their phase must be one
+    the relay can produce (``uavsim.learning.identify.phase_lead``: an early-switched,
+    noise-driven cycle lags clearly less).
+    """
     from uavsim.data.preprocess import NoOscillation, features
+    from uavsim.learning.identify import PHASE_LEAD_MAX_DEG, phase_lead
 
     try:
-        features(res.y[0], res.u[0], RATE_HZ, h, 0.0, res.y.shape[1])
+        f = features(res.y[0], res.u[0], RATE_HZ, h, 0.0, res.y.shape[1])
     except NoOscillation as exc:
         return str(exc)
+    if beta is not None and math.isfinite(f.response_period) and abs(f.response) > 0:
+        lead = phase_lead(f.response, f.response_period, beta)
+        if lead > PHASE_LEAD_MAX_DEG:
+            return f"the cycle lags {lead:.0f} deg less than the relay puts it: switched early, on noise"
     return None
+
+
+def _faster_than_grid(T0: float, loop: str, lateral: dict[str, Any] | None) -> str | None:
+    """Why a cycle of period ``T0`` (s) is a noise-switched relay, or None.
+
+    No class of the loop's grid (the lateral sub-grid of the identified attitude class)
+    cycles faster than ``PERIOD_RANGE[0]`` times its fastest class: a faster cycle is
+    the relay switching on noise, which a larger ``a_n`` can prevent.
+    """
+    from uavsim.learning.identify import PERIOD_RANGE
+    from uavsim.tuning.grid import load_grid
+
+    if not math.isfinite(T0):
+        return None
+    if loop == "altitude":
+        P = load_grid("altitude").period
+    elif lateral and lateral.get("attitude_class") is not None:
+        P = load_grid("lateral").lateral(int(lateral["attitude_class"])).period
+    else:
+        return None
+    lo = PERIOD_RANGE[0] * float(np.min(P))
+    return f"cycle period {T0:.3g} s, faster than any class ({lo:.3g} s)" if T0 < lo else None
 
 
 def _dummy(loop: str) -> LumpedParams:
