@@ -3,7 +3,10 @@
 The session needs an np-mrft (or mrft) run at the beta the network was trained
 for. The JSON (``--json``) is that of the session format: ``loop``, ``class``,
 ``params`` (K, T_prop, T1, tau), ``gains`` (kp, kd, derivative_filter_hz for the
-identified K), plus ``oscillation`` and ``run``. ``--write-model`` stores the
+identified K), plus ``oscillation`` and ``run``. For inner loops ``class`` and
+``params`` are the best fit of the cycle and ``gains`` the least risky among the
+best fits' rule gains (``gains_class`` names whose; ``gains_best_fit`` are the
+rule on ``params``; ``uavsim.learning.identify.decide_gains``). ``--write-model`` stores the
 identified ``[model]`` in the session (``--force`` replaces an existing one).
 A lateral session closes over an attitude loop: ``--attitude-class N`` names
 its class (identify the roll or pitch session first); the answer's ``params``
@@ -51,5 +54,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
            "period_s": ans["oscillation"]["period"], "amplitude": ans["oscillation"]["amplitude"]}
+    if "gains_class" in ans:
+        row["gains_class"] = ans["gains_class"]
     print_table([row])
     return 0
