@@ -284,8 +284,9 @@ def decide_gains(cand: np.ndarray, ws: np.ndarray, harmonics_y: np.ndarray, resp
     -------
     dict of (m,) arrays: ``kp``, ``kd``, ``N`` (rad/s), ``derivative_filter_hz``, ``omega`` (rad/s) of the
     chosen gains, ``pick`` (the class whose model they are the rule's gains of), ``rank`` (its place among
-    the candidates, 0 = best fit) and ``expected`` (its expected deterioration, ``sum_j w_j R[i, j]``).
-    Rows whose scores are not finite take the best fit's gains.
+    the candidates, 0 = best fit) and ``expected`` (its expected deterioration, ``sum_j w_j R[i, j]``);
+    ``best_fit``: the same five arrays for the best fit's own rule gains. Rows whose scores are not
+    finite take the best fit's gains.
     """
     from uavsim.lumped.ise import step_ise_batch
 
@@ -313,8 +314,11 @@ def decide_gains(cand: np.ndarray, ws: np.ndarray, harmonics_y: np.ndarray, resp
     E = np.einsum("mj,mij->mi", w, R)
     rank = np.where(ok, np.argmin(E, axis=1), 0)
     k = np.arange(m) * c + rank
-    out = {n: np.asarray(g[n], dtype=np.float64)[k] for n in ("kp", "kd", "N", "derivative_filter_hz", "omega")}
-    return {**out, "pick": cand[np.arange(m), rank], "rank": rank, "expected": E[np.arange(m), rank]}
+    names = ("kp", "kd", "N", "derivative_filter_hz", "omega")
+    out = {n: np.asarray(g[n], dtype=np.float64)[k] for n in names}
+    best = {n: np.asarray(g[n], dtype=np.float64)[np.arange(m) * c] for n in names}
+    return {**out, "pick": cand[np.arange(m), rank], "rank": rank, "expected": E[np.arange(m), rank],
+            "best_fit": best}
 
 
 def model_gains(model: dict[str, np.ndarray], family: str, beta: float, pm_deg: float) -> dict[str, np.ndarray]:
@@ -491,8 +495,8 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias
     if not (np.isfinite(model["K"][0]) and model["K"][0] > 0):
         raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
     rule = rule_of(meta)
-    g_fit = model_gains(model, fam, *rule)
     g = decide_gains(cand, ws, f.harmonics_y[None], resp, rper, tab, fam, *rule)
+    g_fit = g["best_fit"]
     params = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "tau")}
     keys = ("kp", "kd", "derivative_filter_hz")
     gm = measured_point_gains(resp, rper, *rule)
