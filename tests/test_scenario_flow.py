@@ -196,3 +196,40 @@ def test_relay_faster_than_every_class_is_noise_switched():
     assert _faster_than_grid(0.5 * sub.min(), "lateral_y", {"attitude_class": 4}) is not None
     assert _faster_than_grid(0.5 * sub.min(), "lateral_y", None) is None
     assert _faster_than_grid(float("nan"), "altitude", None) is None
+
+
+def test_target_step_switch_is_in_the_recording(tmp_path):
+    """A target step under the PBVS/IBVS schedules switches to IBVS; the recording carries the
+    ``schedule`` line stepping from 1 to 2 at that time and a ``switch`` text event, read back
+    with Rerun's own ``rrd print``."""
+    import re
+
+    from _rerun_cli import iso_seconds, rerun
+
+    from uavsim.scenario.flow import _episode
+    from uavsim.scenario.record import write_recording
+    from uavsim.vision.schedules import Schedule, ScheduledPD
+
+    scn = load_scenario(SCEN / "target-step.toml")
+    truth = scn.truth["altitude"]
+    ctrl = ScheduledPD(Schedule(1.1, 0.23, 10.0), Schedule(0.42, 0.13, 10.0), 200.0, 1)
+    res = _episode(truth, scn, "scheduled", 5).run(ctrl, 4.0, target=lambda t: 0.5 if t >= 1.0 else 0.0)
+    sched = res.schedule[0]
+    k = int(np.flatnonzero(np.diff(sched) != 0)[0] + 1)
+    assert sched[k - 1] == 1 and sched[k] == 2 and res.t[k] >= 1.0
+    result = {"_episodes": {"test/target-step": res}, "loops": {"altitude": {"kp": 1.1, "kd": 0.23}},
+              "test": {"kind": "target-step", "loop": "altitude"}}
+    rrd = write_recording(result, tmp_path / "t.rrd")
+    out = rerun("rrd", "print", "-vvv", "--entity", "/test/target-step/schedule", str(rrd))
+    assert out.returncode == 0, out.stderr
+    rows = []
+    for line in out.stdout.splitlines():
+        cells = [c.strip(" │") for c in line.split("┆")]
+        if len(cells) == 3 and cells[0].startswith("row_") and cells[1].startswith("P"):
+            rows.append((iso_seconds(cells[1]), float(cells[2].strip("[]"))))
+    rows = np.array(rows)
+    assert len(rows) == len(res.t)
+    step = rows[np.argmax(rows[:, 1] == 2.0), 0]
+    assert step == pytest.approx(res.t[k], abs=1e-6)
+    text = rerun("rrd", "print", "-vvv", "--entity", "/test/target-step/switch", str(rrd))
+    assert text.returncode == 0 and re.search(r"switch to IBVS", text.stdout), text.stdout[-2000:]
