@@ -37,13 +37,12 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.learning.export import Predictor
 from uavsim.learning.identify import (
-    PHASE_LEAD_MAX_DEG,
     decide_gains,
     fit_response,
     measured_point_gains,
     model_gains,
     period_in_grid,
-    phase_lead,
+    phase_refusal,
     rank_candidates,
 )
 from uavsim.learning.train import class_metrics, load_training_data
@@ -207,9 +206,8 @@ def _nearest_in_box(fam: str, keys: tuple[str, ...], P: np.ndarray, table: dict[
 
 
 def _phase_ok(resp: np.ndarray, rper: np.ndarray, ok: np.ndarray, beta: float) -> np.ndarray:
-    """(m,) bool: the cycles identification does not refuse as switched by noise (``phase_lead``)."""
-    return np.array([not k or phase_lead(r, q, beta) <= PHASE_LEAD_MAX_DEG for r, q, k in zip(resp, rper, ok,
-                                                                                                   strict=True)])
+    """(m,) bool: the cycles identification does not refuse as switched by noise (``phase_refusal``)."""
+    return np.array([not k or phase_refusal(r, q, beta) is None for r, q, k in zip(resp, rper, ok, strict=True)])
 
 
 def _pct(x: np.ndarray) -> list[float]:

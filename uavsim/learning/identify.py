@@ -62,7 +62,7 @@ from uavsim.learning.export import META_FILE, Predictor
 
 __all__ = ["default_model_root", "resolve_model_dir", "identify_session", "identify_arrays", "write_model",
            "fit_response", "model_gains", "measured_point_gains", "held_response", "waveform_scores", "select_class",
-           "rank_candidates", "decide_gains", "DECIDE_TOP", "phase_lead", "PHASE_LEAD_MAX_DEG",
+           "rank_candidates", "decide_gains", "DECIDE_TOP", "phase_lead", "phase_refusal", "period_bounds", "PHASE_LEAD_MAX_DEG",
            "lateral_context", "fit_response_lateral", "lateral_gains", "period_in_grid", "SATURATION_FRACTION",
            "SELECT_TOP", "PERIOD_RANGE"]
 
@@ -526,11 +526,17 @@ def _cycle_info(f) -> dict[str, Any]:
                          "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}}
 
 
-def period_in_grid(period: np.ndarray, table: dict[str, Any]) -> np.ndarray:
-    """Whether each measured cycle period (s) is one the grid's classes can produce (``PERIOD_RANGE``), (m,) bool."""
+def period_bounds(table: dict[str, Any]) -> tuple[float, float]:
+    """Shortest and longest cycle period (s) the grid's classes can produce (``PERIOD_RANGE``)."""
     P = np.asarray(table["period"], dtype=np.float64)
+    return PERIOD_RANGE[0] * float(P.min()), PERIOD_RANGE[1] * float(P.max())
+
+
+def period_in_grid(period: np.ndarray, table: dict[str, Any]) -> np.ndarray:
+    """Whether each measured cycle period (s) is one the grid's classes can produce (``period_bounds``), (m,) bool."""
+    lo, hi = period_bounds(table)
     period = np.asarray(period, dtype=np.float64)
-    return (period >= PERIOD_RANGE[0] * P.min()) & (period <= PERIOD_RANGE[1] * P.max())
+    return (period >= lo) & (period <= hi)
 
 
 def _check_period(period: float, table: dict[str, Any]) -> None:
@@ -558,15 +564,23 @@ def phase_lead(response: complex, response_period: float, beta: float, rate_hz: 
     return math.degrees(ph - (-math.pi + math.asin(float(beta))))
 
 
+def phase_refusal(response: complex, response_period: float, beta: float | None) -> str | None:
+    """Why a cycle of this response is not one a relay at ``beta`` produces (``phase_lead`` above
+    ``PHASE_LEAD_MAX_DEG``: switched early, on noise), or None; None without a ``beta``."""
+    if beta is None:
+        return None
+    lead = phase_lead(response, response_period, beta)
+    if lead > PHASE_LEAD_MAX_DEG:
+        return f"the cycle lags {lead:.0f} deg less than a relay at beta={beta:g} puts it: the relay switched early, on noise"
+    return None
+
+
 def _check_phase(f, beta: float | None) -> None:
     from uavsim.data.preprocess import NoOscillation
 
-    if beta is None:
-        return
-    lead = phase_lead(f.response, f.response_period, beta)
-    if lead > PHASE_LEAD_MAX_DEG:
-        raise NoOscillation(f"the cycle lags {lead:.0f} deg less than a relay at beta={beta:g} puts it: the relay "
-                            "switched early, on noise")
+    why = phase_refusal(f.response, f.response_period, beta)
+    if why:
+        raise NoOscillation(why)
 
 
 def _softmax(a: np.ndarray) -> np.ndarray:

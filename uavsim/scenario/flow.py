@@ -217,27 +217,25 @@ def _unsteady(res: VisionResult, h: float, beta: float | None = None) -> str | N
     noise-driven cycle lags clearly less).
     """
     from uavsim.data.preprocess import NoOscillation, features
-    from uavsim.learning.identify import PHASE_LEAD_MAX_DEG, phase_lead
+    from uavsim.learning.identify import phase_refusal
 
     try:
         f = features(res.y[0], res.u[0], RATE_HZ, h, 0.0, res.y.shape[1])
     except NoOscillation as exc:
         return str(exc)
-    if beta is not None and math.isfinite(f.response_period) and abs(f.response) > 0:
-        lead = phase_lead(f.response, f.response_period, beta)
-        if lead > PHASE_LEAD_MAX_DEG:
-            return f"the cycle lags {lead:.0f} deg less than the relay puts it: switched early, on noise"
-    return None
+    if not (math.isfinite(f.response_period) and abs(f.response) > 0):
+        return None
+    return phase_refusal(f.response, f.response_period, beta)
 
 
 def _faster_than_grid(T0: float, loop: str, lateral: dict[str, Any] | None) -> str | None:
     """Why a cycle of period ``T0`` (s) is a noise-switched relay, or None.
 
     No class of the loop's grid (the lateral sub-grid of the identified attitude class)
-    cycles faster than ``PERIOD_RANGE[0]`` times its fastest class: a faster cycle is
+    cycles faster than ``period_bounds`` allows: a faster cycle is
     the relay switching on noise, which a larger ``a_n`` can prevent.
     """
-    from uavsim.learning.identify import PERIOD_RANGE
+    from uavsim.learning.identify import period_bounds
     from uavsim.tuning.grid import load_grid
 
     if not math.isfinite(T0):
@@ -248,7 +246,7 @@ def _faster_than_grid(T0: float, loop: str, lateral: dict[str, Any] | None) -> s
         P = load_grid("lateral").lateral(int(lateral["attitude_class"])).period
     else:
         return None
-    lo = PERIOD_RANGE[0] * float(np.min(P))
+    lo = period_bounds({"period": P})[0]
     return f"cycle period {T0:.3g} s, faster than any class ({lo:.3g} s)" if T0 < lo else None
 
 
