@@ -12,6 +12,12 @@ module minimizes it over ``(kp, kd)``:
   The ISE alone would drive the filter open (a noise-free criterion favours the
   raw difference), so optimizing it is no answer a vehicle can fly. The filter
   is part of the answer's gains (``derivative_filter_hz``);
+* the step is taken with the PD started at it (``kick=False`` of
+  ``uavsim.lumped.sampled``: no derivative kick). With the kick the ISE optimum
+  is another kind of controller, ``kp`` a tenth of the rule's and the step
+  driven by the derivative impulse (hundreds of times the steady command,
+  which a vehicle saturates), and the rule would sit at J ~ 2 from it; without
+  it the optimum lies near the rule (optimal ``kp`` 0.5-1.9 x the rule's);
 * the search runs in ``(log kp, log kd)`` from the best stable node of a scan
   around the rule's gains (the rule itself is unstable at the control rate for
   the fastest processes), then a batched trust-region Newton method on
@@ -46,7 +52,7 @@ from uavsim.lumped.params import LumpedParams, loop_family
 from uavsim.lumped.sampled import SampledProcess, lift, sampled_ise
 from uavsim.tuning.rule import TuningRule
 
-__all__ = ["DEFAULT_RATE_HZ", "FILTER_CAP_FRACTION", "OptimalGains", "derivative_filter", "minimize_ise",
+__all__ = ["DEFAULT_RATE_HZ", "FILTER_CAP_FRACTION", "OptimalGains", "derivative_filter", "minimize_ise", "minimize_log",
            "optimal_gains", "optimal_pd", "scale_gains"]
 
 #: the control rate of the vehicle (paper: 200 Hz loop)
@@ -134,37 +140,32 @@ def _log_ise(proc: SampledProcess, idx: np.ndarray, th: np.ndarray, N: np.ndarra
         return np.where(np.isfinite(q) & (q > 0), np.log(q), np.inf)
 
 
-def minimize_ise(proc: SampledProcess, N, kp0, kd0, *, max_iter: int = 60, tol: float = 1e-7,
-                 h0: float = 0.02, kick: bool = False) -> dict[str, np.ndarray]:
-    """Minimize the sampled ISE over ``(kp, kd)`` from stable starts, batched (trust-region Newton).
+def minimize_log(logf, th0: np.ndarray, *, max_iter: int = 60, tol: float = 1e-7,
+                 h0: float = 0.02) -> dict[str, np.ndarray]:
+    """Batched trust-region Newton on a smooth objective of ``(log kp, log kd)``.
 
     Parameters
     ----------
-    proc : SampledProcess
-        B processes (``uavsim.lumped.sampled.lift``).
-    N : float or ndarray (B,)
-        Fixed derivative filters, rad/s.
-    kp0, kd0 : ndarray (B,)
-        Starting gains; each must give a stable loop (finite ISE).
-    max_iter : int
-        Newton iterations at most.
-    tol : float
-        Convergence: a step shorter than ``tol`` in ``(log kp, log kd)``.
-    h0 : float
-        First finite-difference step, in log units.
-    kick : bool
-        Step semantics of the ISE (``uavsim.lumped.sampled``).
+    logf : callable (idx (m,), th (m, 2)) -> (m,)
+        The objective of problems ``idx`` at points ``th`` (e.g. ``log ISE``); ``inf`` where not
+        admissible (an unstable loop). One call per iteration evaluates all active problems.
+    th0 : ndarray (B, 2)
+        Admissible starting points.
+    max_iter, tol, h0 : see ``minimize_ise``.
 
     Returns
     -------
-    dict of (B,) arrays: ``kp``, ``kd``, ``ise``, ``iterations``, ``converged``.
+    dict: ``th`` (B, 2), ``f`` (B,), ``iterations`` (B,), ``converged`` (B,).
+
+    Derivatives come from a 3 x 3 finite-difference stencil of step ``h``; a stencil that
+    touches an inadmissible point is shrunk and retried. Only decreasing steps are
+    accepted, so the answer is admissible and never worse than the start.
     """
-    B = proc.B
-    N = np.broadcast_to(np.asarray(N, dtype=np.float64), (B,)).copy()
-    th = np.column_stack([np.log(np.broadcast_to(kp0, (B,))), np.log(np.broadcast_to(kd0, (B,)))]).astype(float)
-    f = _log_ise(proc, np.arange(B), th, N, kick)
+    th = np.array(th0, dtype=np.float64).reshape(-1, 2)
+    B = th.shape[0]
+    f = logf(np.arange(B), th)
     if not np.all(np.isfinite(f)):
-        raise UserError("minimize_ise needs stable starting gains")
+        raise UserError("the optimization needs admissible (stable) starting gains")
     delta = np.full(B, 0.5)  # trust radius
     h = np.full(B, h0)
     iters = np.zeros(B, dtype=np.int64)
@@ -175,7 +176,7 @@ def minimize_ise(proc: SampledProcess, N, kp0, kd0, *, max_iter: int = 60, tol: 
             break
         m = active.size
         pts = th[active][:, None, :] + h[active][:, None, None] * _STENCIL[None]  # (m, 8, 2)
-        fs = _log_ise(proc, np.repeat(active, 8), pts.reshape(-1, 2), N, kick).reshape(m, 8)
+        fs = logf(np.repeat(active, 8), pts.reshape(-1, 2)).reshape(m, 8)
         f0 = f[active]
         hh = h[active]
         fin = np.all(np.isfinite(fs), axis=1)
@@ -205,7 +206,7 @@ def minimize_ise(proc: SampledProcess, N, kp0, kd0, *, max_iter: int = 60, tol: 
         sl = np.minimum(sl, dl)
         # a stencil touching instability: shrink it and retry from the same point
         s = np.where(fin[:, None], s, 0.0)
-        f_new = _log_ise(proc, active, th[active] + s, N, kick)
+        f_new = logf(active, th[active] + s)
         pred = -(np.einsum("mi,mi->m", g, s) + 0.5 * np.einsum("mi,mij,mj->m", s, H, s))
         better = fin & (f_new < f0)
         ratio = np.where(pred > 0, (f0 - f_new) / np.maximum(pred, 1e-300), 0.0)
@@ -220,7 +221,40 @@ def minimize_ise(proc: SampledProcess, N, kp0, kd0, *, max_iter: int = 60, tol: 
         done = (fin & (sl < tol)) | (delta[active] < tol) | (hh < 1e-8)
         conv[active] = done & fin
         active = active[~done]
-    return {"kp": np.exp(th[:, 0]), "kd": np.exp(th[:, 1]), "ise": np.exp(f), "iterations": iters, "converged": conv}
+    return {"th": th, "f": f, "iterations": iters, "converged": conv}
+
+
+def minimize_ise(proc: SampledProcess, N, kp0, kd0, *, max_iter: int = 60, tol: float = 1e-7,
+                 h0: float = 0.02, kick: bool = False) -> dict[str, np.ndarray]:
+    """Minimize the sampled ISE over ``(kp, kd)`` from stable starts, batched (``minimize_log``).
+
+    Parameters
+    ----------
+    proc : SampledProcess
+        B processes (``uavsim.lumped.sampled.lift``).
+    N : float or ndarray (B,)
+        Fixed derivative filters, rad/s.
+    kp0, kd0 : ndarray (B,)
+        Starting gains; each must give a stable loop (finite ISE).
+    max_iter : int
+        Newton iterations at most.
+    tol : float
+        Convergence: a step shorter than ``tol`` in ``(log kp, log kd)``.
+    h0 : float
+        First finite-difference step, in log units.
+    kick : bool
+        Step semantics of the ISE (``uavsim.lumped.sampled``).
+
+    Returns
+    -------
+    dict of (B,) arrays: ``kp``, ``kd``, ``ise``, ``iterations``, ``converged``.
+    """
+    B = proc.B
+    N = np.broadcast_to(np.asarray(N, dtype=np.float64), (B,)).copy()
+    th0 = np.column_stack([np.log(np.broadcast_to(kp0, (B,))), np.log(np.broadcast_to(kd0, (B,)))])
+    r = minimize_log(lambda idx, th: _log_ise(proc, idx, th, N, kick), th0, max_iter=max_iter, tol=tol, h0=h0)
+    return {"kp": np.exp(r["th"][:, 0]), "kd": np.exp(r["th"][:, 1]), "ise": np.exp(r["f"]),
+            "iterations": r["iterations"], "converged": r["converged"]}
 
 
 def _start(proc: SampledProcess, N: np.ndarray, kp_r: np.ndarray, kd_r: np.ndarray,
