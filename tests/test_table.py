@@ -84,8 +84,9 @@ def test_J_is_invariant_to_the_true_gain():
 
 def test_gains_and_gain_estimate():
     t = load_table("altitude")
-    g = t.gains(12, K=2.5)
-    assert g["kp"] == pytest.approx(t.kp[12] / 2.5) and g["derivative_filter_hz"] == t.derivative_filter_hz[12]
+    g = t.gains(12, K=2.5)  # the robust answer by default
+    assert g["kp"] == pytest.approx(t.robust_kp[12] / 2.5) and g["derivative_filter_hz"] == t.derivative_filter_hz[12]
+    assert t.gains(12, K=2.5, robust=False)["kd"] == pytest.approx(t.kd[12] / 2.5)
     assert t.gain_estimate(12, 3.0 * t.gain_at_omega[12]) == pytest.approx(3.0)
     with pytest.raises(UserError):
         t.gains(10_000)

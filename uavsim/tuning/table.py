@@ -7,6 +7,15 @@ by the rule at ``10 Omega`` capped at a quarter of the rate), its ISE, the
 rule's ISE at the same rate for comparison, and the relative sensitivity ``J``
 between classes recomputed from these gains (``uavsim.tuning.sensitivity``).
 
+The ISE optimum is aggressive (gain margins 1.3-1.5 on the inner loops, 1.03-1.3
+on the lateral ones): a neighbour class's optimum can destabilize a process,
+most of the lateral neighbour pairs one way. So each class also has a robust
+answer, ``robust_kp``/``robust_kd``: the PD of least expected J over the class
+and its grid neighbours (``neighbourhoods``; ``uavsim.tuning.robust``), each
+neighbour judged with the gain identification would estimate on it for this
+class. It costs the class itself about a percent and holds every neighbour
+(``J_robust``); it is what ``OptimalTable.gains`` answers by default.
+
 Gains are for K = 1; a process of gain K takes ``kp / K``, ``kd / K`` and the
 same filter (``OptimalTable.gains``). The table's J assumes identification
 estimates K from the measured response magnitude ``|G(j w)|`` at the cycle's
@@ -33,8 +42,8 @@ hash of the grid it belongs to and is refused with another grid.
 
     from uavsim.tuning.table import load_table
     t = load_table("altitude")                  # 200 Hz, packaged
-    t.gains(cls=12, K=2.5)                      # {'kp': ..., 'kd': ..., 'derivative_filter_hz': ...}
-    t.J.shape                                   # (208, 208), rows answered, columns true
+    t.gains(cls=12, K=2.5)                      # robust answer: {'kp': ..., 'kd': ..., 'derivative_filter_hz': ...}
+    t.J.shape, t.J_robust.shape                 # (208, 208), rows answered, columns true
     t100 = load_table("attitude", rate_hz=100)  # built once (seconds), then read from the cache
 """
 
@@ -57,12 +66,13 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.lumped.frequency import freq_response_batch
 from uavsim.lumped.params import loop_family
-from uavsim.tuning.grid import Grid, load_grid
+from uavsim.tuning.grid import Grid, load_grid, neighbour_pairs
 from uavsim.tuning.optimal import DEFAULT_RATE_HZ, FILTER_CAP_FRACTION, optimal_gains
-from uavsim.tuning.sensitivity import table_j_matrix
+from uavsim.tuning.robust import robust_gains
+from uavsim.tuning.sensitivity import estimated_gain, table_j_matrix
 
 __all__ = ["TABLE_FORMAT", "TABLE_VERSION", "OptimalTable", "build_table", "load_table", "save_table",
-           "table_path", "cache_dir", "lateral_attitude"]
+           "table_path", "cache_dir", "lateral_attitude", "neighbourhoods"]
 
 TABLE_FORMAT = "uavsim-optimal-table"
 TABLE_VERSION = 1
@@ -112,7 +122,10 @@ class OptimalTable:
     rule_ise : the grid's rule gains' ISE at ``rate_hz`` (inf: unstable there)
     omega : DF MRFT frequency at the grid's beta, rad/s (the filter's and the gain estimate's frequency)
     gain_at_omega : ``|G(j omega)|`` of the unit-gain class (``gain_estimate``)
-    J : relative sensitivity between the classes at ``rate_hz``
+    J : relative sensitivity between the classes at ``rate_hz`` (class ``i``'s optimal gains on class ``j``)
+    robust_kp, robust_kd : the robust answer (unit gain): least expected J over the class and its
+        grid neighbours (``neighbourhoods``, ``uavsim.tuning.robust``), same filter
+    J_robust : J of the robust answers (class ``i``'s robust gains on class ``j`` against ``j``'s optimum)
     scaling : the gain estimate J assumes (``uavsim.tuning.sensitivity.SCALINGS``)
     beta, pm_deg, gain_scale : the grid's (sub-grid's) rule
     built : how and when it was built
@@ -131,6 +144,9 @@ class OptimalTable:
     omega: np.ndarray
     gain_at_omega: np.ndarray
     J: np.ndarray
+    robust_kp: np.ndarray
+    robust_kd: np.ndarray
+    J_robust: np.ndarray
     beta: float
     pm_deg: float
     gain_scale: float
@@ -158,15 +174,20 @@ class OptimalTable:
             raise UserError(f"attitude class {att_class} out of range 0..{len(self.sub) - 1}")
         return self.sub[att_class]
 
-    def gains(self, cls: int, K: float = 1.0) -> dict[str, float]:
-        """Gains of class ``cls`` for a process of gain ``K``: ``kp / K``, ``kd / K``, the filter (Hz)."""
+    def gains(self, cls: int, K: float = 1.0, robust: bool = True) -> dict[str, float]:
+        """Gains of class ``cls`` for a process of gain ``K``: ``kp / K``, ``kd / K``, the filter (Hz).
+
+        ``robust`` (default): the robust answer (``robust_kp``, ``robust_kd``), which a one-level miss
+        of the class does not destabilize; else the class's own ISE optimum (``kp``, ``kd``).
+        """
         if self.sub:
             raise UserError("a lateral table has one sub-table per attitude class: use table.lateral(a).gains(i, K)")
         if not 0 <= cls < self.n:
             raise UserError(f"class {cls} out of range 0..{self.n - 1}")
         if not (math.isfinite(K) and K > 0):
             raise UserError(f"process gain K must be finite and > 0, got {K!r}")
-        return {"kp": float(self.kp[cls]) / K, "kd": float(self.kd[cls]) / K,
+        kp, kd = (self.robust_kp, self.robust_kd) if robust else (self.kp, self.kd)
+        return {"kp": float(kp[cls]) / K, "kd": float(kd[cls]) / K,
                 "derivative_filter_hz": float(self.derivative_filter_hz[cls])}
 
     def gain_estimate(self, cls: int, response_magnitude: float) -> float:
@@ -195,8 +216,9 @@ class OptimalTable:
             return d
         d.update({"kp": arr(self.kp), "kd": arr(self.kd), "derivative_filter_hz": arr(self.derivative_filter_hz),
                   "ise": arr(self.ise), "rule_ise": arr(self.rule_ise), "omega": arr(self.omega),
-                  "gain_at_omega": arr(self.gain_at_omega),
-                  "J": [arr(row, 6) for row in self.J]})
+                  "gain_at_omega": arr(self.gain_at_omega), "robust_kp": arr(self.robust_kp),
+                  "robust_kd": arr(self.robust_kd),
+                  "J": [arr(row, 6) for row in self.J], "J_robust": [arr(row, 6) for row in self.J_robust]})
         if self.attitude is not None:
             d["attitude"] = self.attitude
         return d
@@ -211,12 +233,14 @@ class OptimalTable:
         if "sub" in d:
             empty = np.zeros(0)
             t = cls(kp=empty, kd=empty, derivative_filter_hz=empty, ise=empty, rule_ise=empty, omega=empty,
-                    gain_at_omega=empty, J=np.zeros((0, 0)), **common)
+                    gain_at_omega=empty, J=np.zeros((0, 0)), robust_kp=empty, robust_kd=empty,
+                    J_robust=np.zeros((0, 0)), **common)
             t.sub = [cls.from_dict(s) for s in d["sub"]]
             return t
         return cls(kp=arr(d["kp"]), kd=arr(d["kd"]), derivative_filter_hz=arr(d["derivative_filter_hz"]),
                    ise=arr(d["ise"]), rule_ise=arr(d["rule_ise"]), omega=arr(d["omega"]),
-                   gain_at_omega=arr(d["gain_at_omega"]),
+                   gain_at_omega=arr(d["gain_at_omega"]), robust_kp=arr(d["robust_kp"]), robust_kd=arr(d["robust_kd"]),
+                   J_robust=np.array([arr(r) for r in d["J_robust"]]).reshape(len(d["kp"]), len(d["kp"])),
                    J=np.array([arr(r) for r in d["J"]]).reshape(len(d["kp"]), len(d["kp"])),
                    attitude=d.get("attitude"), **common)
 
@@ -300,18 +324,41 @@ def _inner_params(grid: Grid) -> dict[str, np.ndarray]:
     return {k: np.asarray(grid.params[k], dtype=np.float64) for k in ("T_prop", "T1", "tau")}
 
 
-def _build_flat(fam: str, rate_hz: float, cparams: dict[str, Any], rule, grid_hash: str,
-                built: dict[str, Any], attitude: dict | None = None, scaling: str = "mrft") -> OptimalTable:
+def neighbourhoods(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+    """Each class with its grid neighbours (``uavsim.tuning.grid.neighbour_pairs``, both ways).
+
+    Returns ``(answer, model)`` index arrays: class ``answer[k]``'s neighbourhood holds ``model[k]``
+    (itself included), sorted by answer.
+    """
+    across, within = neighbour_pairs(grid)
+    pr = np.vstack([np.column_stack([np.arange(grid.n)] * 2), across, within, across[:, ::-1], within[:, ::-1]])
+    pr = np.unique(pr, axis=0)
+    return pr[:, 0], pr[:, 1]
+
+
+def _build_flat(fam: str, rate_hz: float, grid: Grid, cparams: dict[str, Any], built: dict[str, Any],
+                attitude: dict | None = None, scaling: str = "mrft") -> OptimalTable:
+    rule = grid.rule
     g = optimal_gains(fam, rate_hz, rule=rule, K=1.0, **cparams)
     if not np.all(np.isfinite(g.ise)):
         bad = np.flatnonzero(~np.isfinite(g.ise)).tolist()
         raise UserError(f"{fam}: no stable PD found at {rate_hz:g} Hz for classes {bad}")
     J = table_j_matrix(fam, rate_hz, cparams, g.kp, g.kd, g.N, g.ise, g.omega, scaling=scaling)
     gw = np.abs(freq_response_batch(fam, g.omega[:, None], K=1.0, **cparams)[:, 0])
-    return OptimalTable(family=fam, rate_hz=float(rate_hz), grid_hash=grid_hash, kp=g.kp, kd=g.kd,
+    # the robust answer: least expected J over the class and its neighbours, each judged with the
+    # gain identification would estimate on it for this class
+    ans, mod = neighbourhoods(grid)
+    pick = {k: (np.asarray(v)[mod] if np.size(v) > 1 else v) for k, v in cparams.items()}
+    ansp = {k: (np.asarray(v)[ans] if np.size(v) > 1 else v) for k, v in cparams.items()}
+    K_hat = estimated_gain(fam, g.omega[mod], {"K": 1.0, **pick}, ansp, g.omega[ans], scaling)
+    r = robust_gains(fam, rate_hz, models={"K": 1.0, **pick}, group=ans, N=g.N, scale=1.0 / K_hat,
+                     q_opt=g.ise[mod], kp_opt=g.kp[mod], kd_opt=g.kd[mod])
+    Jr = table_j_matrix(fam, rate_hz, cparams, r["kp"], r["kd"], g.N, g.ise, g.omega, scaling=scaling)
+    return OptimalTable(family=fam, rate_hz=float(rate_hz), grid_hash=grid.hash, kp=g.kp, kd=g.kd,
                         derivative_filter_hz=g.derivative_filter_hz, ise=g.ise, rule_ise=g.rule_ise, omega=g.omega,
-                        gain_at_omega=gw, J=J, beta=rule.beta, pm_deg=rule.pm_deg, gain_scale=rule.gain_scale,
-                        built=built, scaling=scaling, attitude=attitude)
+                        gain_at_omega=gw, J=J, robust_kp=r["kp"], robust_kd=r["kd"], J_robust=Jr, beta=rule.beta,
+                        pm_deg=rule.pm_deg, gain_scale=rule.gain_scale, built=built, scaling=scaling,
+                        attitude=attitude)
 
 
 def lateral_attitude(att_table: OptimalTable, att_grid: Grid, a: int) -> dict[str, float]:
@@ -339,9 +386,10 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
     built: dict[str, Any] = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
                              "tool_version": tool_version, "filter": _FILTER_RULE,
                              "step": "unit reference step; the PD starts at the step (raw_0 = 0)",
-                             "gain_estimate": "K_hat = |G(j w)| / |G_class(j Omega_class)| (mrft scaling)"}
+                             "gain_estimate": "K_hat = |G(j w)| / |G_class(j Omega_class)| (mrft scaling)",
+                             "robust": "least expected J over the class and its grid neighbours, equal weights"}
     if fam != "lateral":
-        t = _build_flat(fam, rate_hz, _inner_params(grid), grid.rule, grid.hash, built)
+        t = _build_flat(fam, rate_hz, grid, _inner_params(grid), built)
         built["build_time_s"] = round(time.time() - t0, 1)
         return t
     att_grid = load_grid("attitude")
@@ -355,14 +403,16 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
                    "T2": np.asarray(sg.params["T2"], float), "tau_in": att["tau_in"], "att_kp": att["att_kp"],
                    "att_kd": att["att_kd"], "att_N": 2.0 * math.pi * att["att_filter_hz"]}
         ts = time.time()
-        subs.append(_build_flat("lateral", rate_hz, cparams, sg.rule, grid.hash, {"build_time_s": 0.0}, att))
+        subs.append(_build_flat("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att))
+        subs[-1].grid_hash = grid.hash
         subs[-1].built["build_time_s"] = round(time.time() - ts, 1)
         if log:
             log(f"lateral sub-table {a + 1}/{len(grid.sub)}: {subs[-1].n} classes ({time.time() - t0:.0f} s)")
     r = grid.rule
     t = OptimalTable(family=fam, rate_hz=float(rate_hz), grid_hash=grid.hash, kp=np.zeros(0), kd=np.zeros(0),
                      derivative_filter_hz=np.zeros(0), ise=np.zeros(0), rule_ise=np.zeros(0), omega=np.zeros(0),
-                     gain_at_omega=np.zeros(0), J=np.zeros((0, 0)), beta=r.beta, pm_deg=r.pm_deg, gain_scale=r.gain_scale, built=built, sub=subs)
+                     gain_at_omega=np.zeros(0), J=np.zeros((0, 0)), robust_kp=np.zeros(0), robust_kd=np.zeros(0),
+                     J_robust=np.zeros((0, 0)), beta=r.beta, pm_deg=r.pm_deg, gain_scale=r.gain_scale, built=built, sub=subs)
     built["build_time_s"] = round(time.time() - t0, 1)
     return t
 

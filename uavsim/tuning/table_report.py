@@ -7,11 +7,13 @@ true process)`` at the table's control rate (``uavsim.tuning.sensitivity``):
   class's optimum (``rule_J``);
 * neighbour J: the table's symmetrized J between neighbouring classes across and
   within ``Omega`` levels (``uavsim.tuning.grid.neighbour_pairs``), against the
-  paper's J = 1.10 design;
+  paper's J = 1.10 design, for the classes' optima and for their robust answers
+  (``robust_*``; ``robust_own_J``: what the robust answer costs its own class);
 * off-grid figures on seeded random processes of the box (each with its own
   optimum at the rate): coverage (the table gains of the nearest class, by
   log-box distance, and of the best class, what a perfect J-trained classifier
-  would answer, both scaled by the gain identification estimates), and the
+  would answer, both scaled by the gain identification estimates; optimal and
+  robust gains), and the
   controls: the rule on the true process, the rule detuned x0.85, the optimum
   itself detuned x0.85 (a metric that did not punish it would be broken), and
   the ratio of the optimal ``kp`` to the rule's.
@@ -112,26 +114,29 @@ def _points(fam: str, groups: list[tuple], n: int, seed: int) -> dict[str, np.nd
     ci = np.concatenate([np.repeat(np.arange(sum(t.n for t in tabs[:k]), sum(t.n for t in tabs[:k + 1])), n)
                          for k in range(G)])
     pj = np.concatenate([np.tile(np.arange(k * n, (k + 1) * n), tabs[k].n) for k in range(G)])
-    Jp = j_of_points(fam, rate, pp, out["omega"], out["ise"], cp, om, kp, kd, N, pairs=(ci, pj),
-                     scaling=tabs[0].scaling)
-    best = np.full(P, np.inf)
-    np.minimum.at(best, pj, Jp)
-    lookup = {(int(a), int(b)): v for a, b, v in zip(ci, pj, Jp, strict=True)}
     near = np.concatenate(near)
+    res: dict[str, np.ndarray] = {}
+    rkp, rkd = (np.concatenate([getattr(t, a) for t in tabs]) for a in ("robust_kp", "robust_kd"))
+    for kind, (gkp, gkd) in (("", (kp, kd)), ("robust_", (rkp, rkd))):
+        Jp = j_of_points(fam, rate, pp, out["omega"], out["ise"], cp, om, gkp, gkd, N, pairs=(ci, pj),
+                         scaling=tabs[0].scaling)
+        best = np.full(P, np.inf)
+        np.minimum.at(best, pj, Jp)
+        lookup = {(int(a), int(b)): v for a, b, v in zip(ci, pj, Jp, strict=True)}
+        res[kind + "best"] = best
+        res[kind + "nearest"] = np.array([lookup[(int(near[j]), j)] for j in range(P)])
     N_rule = DERIVATIVE_FILTER_RATIO * out["omega"]  # the rule's own filter, uncapped
     q_rule = controller_ise(fam, rate, pp, out["rule_kp"], out["rule_kd"], N_rule)
     q_rule85 = controller_ise(fam, rate, pp, DETUNE * out["rule_kp"], DETUNE * out["rule_kd"], N_rule)
     q_opt85 = controller_ise(fam, rate, pp, DETUNE * out["kp"], DETUNE * out["kd"], out["N"])
-    return {"ok": np.isfinite(out["ise"]), "best": best,
-            "nearest": np.array([lookup[(int(near[j]), j)] for j in range(P)]),
-            "rule": _ratio(q_rule, out["ise"]), "rule_x085": _ratio(q_rule85, out["ise"]),
+    return {"ok": np.isfinite(out["ise"]), **res, "rule": _ratio(q_rule, out["ise"]), "rule_x085": _ratio(q_rule85, out["ise"]),
             "optimum_x085": _ratio(q_opt85, out["ise"]), "kp_over_rule": out["kp"] / out["rule_kp"]}
 
 
 def _summarize(pts: dict[str, np.ndarray]) -> dict[str, Any]:
     ok = pts["ok"]
     out: dict[str, Any] = {"n_points": int(ok.size), "n_without_optimum": int((~ok).sum())}
-    out["coverage"] = {k: j_stats(pts[k][ok]) for k in ("nearest", "best")}
+    out["coverage"] = {k: j_stats(pts[k][ok]) for k in ("nearest", "best", "robust_nearest", "robust_best")}
     out["controls"] = {k: j_stats(pts[k][ok]) for k in ("rule", "rule_x085", "optimum_x085")}
     r = pts["kp_over_rule"][ok]
     out["kp_optimal_over_rule"] = {"min": float(r.min()), "median": float(np.median(r)), "max": float(r.max())} if r.size else {}
@@ -170,17 +175,25 @@ def table_figures(grid, table, n_points: int = 300, seed: int = 1) -> dict[str, 
     pairs = [(grid, table, None)] if not grid.sub else [
         (g, t, t.attitude) for g, t in zip(grid.sub, table.sub, strict=True)]
     per = n_points if not grid.sub else max(4, int(math.ceil(n_points / len(grid.sub))))
-    across, within, rule_J = [], [], []
+    fig: dict[str, list] = {k: [] for k in ("across", "within", "r_across", "r_within", "rule_J", "robust_own")}
     for g, t, _ in pairs:
-        a, w = _neighbour(g, t.J)
-        across.append(a)
-        within.append(w)
-        rule_J.append(_ratio(t.rule_ise, t.ise))
-    across, within, rule_J = (np.concatenate(v) for v in (across, within, rule_J))
+        for pre, J in (("", t.J), ("r_", t.J_robust)):
+            a, w = _neighbour(g, J)
+            fig[pre + "across"].append(a)
+            fig[pre + "within"].append(w)
+        fig["rule_J"].append(_ratio(t.rule_ise, t.ise))
+        fig["robust_own"].append(np.diag(t.J_robust))
+    f = {k: np.concatenate(v) for k, v in fig.items()}
+
+    def nb(x):
+        return {**j_stats(x), "min": _min(x), "target": TARGETS["J"]}
+
     rep: dict[str, Any] = {"loop": fam, "rate_hz": table.rate_hz, "table_hash": table.hash, "seed": seed,
-                           "n_classes": int(len(rule_J)), "rule_J": j_stats(rule_J),
-                           "neighbour_J_across_levels": {**j_stats(across), "min": _min(across), "target": TARGETS["J"]},
-                           "neighbour_J_within_level": {**j_stats(within), "min": _min(within), "target": TARGETS["J"]}}
+                           "n_classes": int(len(f["rule_J"])), "rule_J": j_stats(f["rule_J"]),
+                           "neighbour_J_across_levels": nb(f["across"]), "neighbour_J_within_level": nb(f["within"]),
+                           "robust_own_J": j_stats(f["robust_own"]),
+                           "robust_neighbour_J_across_levels": nb(f["r_across"]),
+                           "robust_neighbour_J_within_level": nb(f["r_within"])}
     rep.update(_summarize(_points(fam, pairs, per, seed)))
     rep["time_s"] = round(time.time() - t0, 1)
     return rep
