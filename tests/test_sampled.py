@@ -23,59 +23,61 @@ RATE = 200.0
 SUB = 10  # fine steps per control period
 
 
+class OuterPD:
+    """The session format's PD on ``n`` errors, started at the step (``kick=False``) or at rest before it."""
+
+    def __init__(self, kp, kd, N, n: int, kick: bool):
+        self.Ts = 1.0 / RATE
+        self.kp, self.kd, self.a = kp, kd, self.Ts * N / (1 + self.Ts * N)
+        self.e_prev = np.zeros(n) if kick else np.ones(n)  # e_0 = 1: the first difference is 0
+        self.d = np.zeros(n)
+
+    def __call__(self, e):
+        self.d = self.d + self.a * ((e - self.e_prev) / self.Ts - self.d)
+        self.e_prev = e
+        return self.kp * e + self.kd * self.d
+
+
+def ise_and_tail(err: np.ndarray, offset=0.0):
+    """Simpson ISE over the fine samples (n, S) and the largest |e| of the last 100 control periods."""
+    return offset + simpson(err**2, dx=1.0 / (RATE * SUB), axis=1), np.abs(err[:, -SUB * 100:]).max(axis=1)
+
+
 def brute_inner(K, T_prop, T1, tau, kp, kd, N, kick: bool, t_end: float):
     """ISE and the tail of |e| of n inner loops, by fine simulation, arrays (n,)."""
-    Ts = 1.0 / RATE
-    dt = Ts / SUB
-    sim = LumpedDiscrete.inner(K, T_prop, T1, tau, dt)
+    sim = LumpedDiscrete.inner(K, T_prop, T1, tau, 1.0 / (RATE * SUB))
     y = sim.reset()
-    n = y.size
-    a = Ts * N / (1 + Ts * N)
-    e_prev = np.zeros(n) if kick else np.ones(n)
-    d = np.zeros(n)
+    pd = OuterPD(kp, kd, N, y.size, kick)
     steps = int(round(t_end * RATE))
-    ys = np.empty((n, steps * SUB + 1))
+    ys = np.empty((y.size, steps * SUB + 1))
     ys[:, 0] = y
     for k in range(steps):
-        e = 1.0 - y
-        d = d + a * ((e - e_prev) / Ts - d)
-        e_prev = e
-        u = kp * e + kd * d
+        u = pd(1.0 - y)
         for j in range(SUB):
             y = sim.step(u)
             ys[:, k * SUB + j + 1] = y
-    err = 1.0 - ys
-    return simpson(err**2, dx=dt, axis=1), np.abs(err[:, -SUB * 100:]).max(axis=1)
+    return ise_and_tail(1.0 - ys)
 
 
 def brute_lateral(p: dict, kp, kd, N, kick: bool, t_end: float):
     """Same for lateral loops (``LateralDiscrete`` with the outer PD and the measurement delay)."""
-    Ts = 1.0 / RATE
-    dt = Ts / SUB
     sim = LateralDiscrete(p["K"], p["T_prop"], p["T1"], p["tau_in"], p["T2"], p["tau"], p["att_kp"], p["att_kd"],
-                          p["att_N"] / (2 * np.pi), dt, RATE)
+                          p["att_N"] / (2 * np.pi), 1.0 / (RATE * SUB), RATE)
     y = sim.reset()
     if kick:
         sim.pd.k = 1  # the attitude PD ran at rest before the step: the jump enters its derivative
-    n = y.size
-    a = Ts * N / (1 + Ts * N)
-    e_prev = np.zeros(n) if kick else np.ones(n)
-    d = np.zeros(n)
+    pd = OuterPD(kp, kd, N, y.size, kick)
     steps = int(round(t_end * RATE))
-    xs = np.zeros((n, steps * SUB + 1))
+    xs = np.zeros((y.size, steps * SUB + 1))
     for k in range(steps):
-        e = 1.0 - y
-        d = d + a * ((e - e_prev) / Ts - d)
-        e_prev = e
-        att_u = sim.pd(kp * e + kd * d - sim.plant.x[:, 0])
+        att_u = sim.pd(pd(1.0 - y) - sim.plant.x[:, 0])
         for j in range(SUB):
             sim.plant.step(att_u)
             sim.xhist[:, sim.plant.k % sim.out_len] = sim.plant.x[:, 3]
             xs[:, k * SUB + j + 1] = sim.plant.x[:, 3]
         y = sim._measure()
-    err = 1.0 - xs
     # e(t) = 1 - x(t - tau) is 1 until tau: the ISE of the measured error is tau + that of 1 - x
-    return p["tau"] + simpson(err**2, dx=dt, axis=1), np.abs(err[:, -SUB * 100:]).max(axis=1)
+    return ise_and_tail(1.0 - xs, p["tau"])
 
 
 # K, T_prop, T1, tau (fractions of the control period: 0, 0.3, 0.5, 0.9, multiples of the fine step), kp, kd, N

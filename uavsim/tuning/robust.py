@@ -40,10 +40,8 @@ def robust_gains(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, models: dict,
 
     Parameters
     ----------
-    family : str
-        Loop family.
-    rate_hz : float
-        Control rate, Hz.
+    family, rate_hz : str, float
+        Loop family and control rate (Hz).
     models : dict
         M candidate processes (arrays (M,) or scalars, with ``K``), as ``uavsim.lumped.sampled.lift``.
     group : int array (M,)

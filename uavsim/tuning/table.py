@@ -50,11 +50,8 @@ hash of the grid it belongs to and is refused with another grid.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
-import json
 import math
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from importlib import resources
@@ -66,7 +63,14 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.lumped.frequency import freq_response_batch
 from uavsim.lumped.params import loop_family
-from uavsim.tuning.grid import Grid, load_grid, neighbour_pairs
+from uavsim.tuning.grid import (
+    Grid,
+    load_grid,
+    neighbour_pairs,
+    read_hashed_json,
+    sub_of,
+    write_hashed_json,
+)
 from uavsim.tuning.optimal import DEFAULT_RATE_HZ, FILTER_CAP_FRACTION, optimal_gains
 from uavsim.tuning.robust import robust_gains
 from uavsim.tuning.sensitivity import estimated_gain, table_j_matrix
@@ -168,11 +172,7 @@ class OptimalTable:
 
     def lateral(self, att_class: int) -> OptimalTable:
         """Sub-table of attitude class ``att_class`` (lateral tables only)."""
-        if not self.sub:
-            raise UserError(f"the {self.family} table has no lateral sub-tables")
-        if not 0 <= att_class < len(self.sub):
-            raise UserError(f"attitude class {att_class} out of range 0..{len(self.sub) - 1}")
-        return self.sub[att_class]
+        return sub_of(self.sub, att_class, f"the {self.family} table")
 
     def gains(self, cls: int, K: float = 1.0, robust: bool = True) -> dict[str, float]:
         """Gains of class ``cls`` for a process of gain ``K``: ``kp / K``, ``kd / K``, the filter (Hz).
@@ -245,36 +245,16 @@ class OptimalTable:
                    attitude=d.get("attitude"), **common)
 
 
-def _content_hash(d: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
-
-
 def save_table(table: OptimalTable, path: str | os.PathLike | None = None) -> Path:
     """Write the table as JSON atomically; default path: ``table_path`` (package data at 200 Hz)."""
     path = Path(path) if path is not None else table_path(table.family, table.rate_hz, table.grid_hash)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    d = table.to_dict()
-    d["hash"] = _content_hash(d)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(d, f, separators=(",", ":"))
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
-    table.hash = d["hash"]
+    table.hash = write_hashed_json(table.to_dict(), path)
     return path
 
 
 def _read(path: Path) -> OptimalTable:
-    try:
-        d = json.loads(path.read_text())
-        h = d.pop("hash", "")
-        if h and h != _content_hash(d):
-            raise UserError(f"table file {path} is corrupt (hash mismatch)")
-        if d.get("format") != TABLE_FORMAT or d.get("version") != TABLE_VERSION:
-            raise UserError(f"table file {path} is not a {TABLE_FORMAT} version {TABLE_VERSION} file")
-        t = OptimalTable.from_dict(d)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise UserError(f"table file {path} is malformed: {exc}") from exc
+    t, h = read_hashed_json(path, "table", lambda d: None if (d.get("format"), d.get("version")) == (
+        TABLE_FORMAT, TABLE_VERSION) else f"is not a {TABLE_FORMAT} version {TABLE_VERSION} file", OptimalTable.from_dict)
     t.hash = h
     return t
 
