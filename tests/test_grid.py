@@ -216,7 +216,7 @@ def test_report_figures_small():
 
 def test_grid_cli_report_json(monkeypatch, capsys):
     monkeypatch.setattr(cli_main, "_COMMAND_MODULES", ["uavsim.cli.tune_cmd", "uavsim.cli.grid_cmd"])
-    assert cli_main.main(["grid", "report", "--loop", "attitude", "--points", "100", "--json"]) == 0
+    assert cli_main.main(["grid", "report", "--loop", "attitude", "--points", "100", "--table-points", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_classes"] == 48 and "coverage" in out
 
@@ -231,7 +231,7 @@ def test_grid_cli_build(monkeypatch, tmp_path):
 
 def test_lateral_report_small(monkeypatch, capsys):
     monkeypatch.setattr(cli_main, "_COMMAND_MODULES", ["uavsim.cli.grid_cmd"])
-    assert cli_main.main(["grid", "report", "--loop", "lateral", "--points", "480", "--json"]) == 0
+    assert cli_main.main(["grid", "report", "--loop", "lateral", "--points", "480", "--table-points", "0", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n_subgrids"] == 48 and out["n_classes_total"] >= 48 * 13
     assert out["coverage"]["n_sampled"] >= 480 and out["coverage"]["stable_fraction"] == 1.0

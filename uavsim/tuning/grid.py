@@ -135,11 +135,7 @@ class Grid:
 
     def lateral(self, att_class: int) -> Grid:
         """Sub-grid of attitude class ``att_class`` (lateral grids only)."""
-        if not self.sub:
-            raise UserError(f"{self.loop} grid has no lateral sub-grids")
-        if not 0 <= att_class < len(self.sub):
-            raise UserError(f"attitude class {att_class} out of range 0..{len(self.sub) - 1}")
-        return self.sub[att_class]
+        return sub_of(self.sub, att_class, f"{self.loop} grid")
 
     def params_of(self, i: int) -> LumpedParams:
         """Class ``i`` as ``LumpedParams`` with K = 1."""
@@ -199,18 +195,50 @@ def _content_hash(d: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
-def save_grid(grid: Grid, path: str | os.PathLike | None = None) -> Path:
-    """Write the grid as JSON atomically (temp file, then ``os.replace``); return the path."""
-    path = Path(path) if path is not None else _grid_dir() / f"{grid.loop}.json"
+def write_hashed_json(d: dict[str, Any], path: Path) -> str:
+    """Write ``d`` with its content hash as JSON atomically (temp file, then ``os.replace``); return the hash."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    d = grid.to_dict()
-    d["hash"] = _content_hash(d)
+    d = {**d, "hash": _content_hash(d)}
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         json.dump(d, f, separators=(",", ":"))
     os.chmod(tmp, 0o644)  # mkstemp makes 0600; the artefact is package data
     os.replace(tmp, path)
-    grid.hash = d["hash"]
+    return d["hash"]
+
+
+def read_hashed_json(path: Path, what: str, problem, parse) -> tuple[Any, str]:
+    """Read a file of ``write_hashed_json``: ``(parse(content), hash)``.
+
+    ``problem(content)`` returns what is wrong with a well-formed file (e.g. its version) or None;
+    a corrupt, malformed or wrong file is a one-line UserError naming it.
+    """
+    try:
+        d = json.loads(path.read_text())
+        h = d.pop("hash", "")
+        if h and h != _content_hash(d):
+            raise UserError(f"{what} file {path} is corrupt (hash mismatch)")
+        msg = problem(d)
+        if msg:
+            raise UserError(f"{what} file {path} {msg}")
+        return parse(d), h
+    except (KeyError, ValueError, TypeError, AttributeError) as exc:
+        raise UserError(f"{what} file {path} is malformed: {exc}") from exc
+
+
+def sub_of(subs: list, att_class: int, owner: str):
+    """``subs[att_class]`` of a lateral grid or table (``owner`` names it in the errors)."""
+    if not subs:
+        raise UserError(f"{owner} has no lateral sub-{'grids' if 'grid' in owner else 'tables'}")
+    if not 0 <= att_class < len(subs):
+        raise UserError(f"attitude class {att_class} out of range 0..{len(subs) - 1}")
+    return subs[att_class]
+
+
+def save_grid(grid: Grid, path: str | os.PathLike | None = None) -> Path:
+    """Write the grid as JSON atomically (temp file, then ``os.replace``); return the path."""
+    path = Path(path) if path is not None else _grid_dir() / f"{grid.loop}.json"
+    grid.hash = write_hashed_json(grid.to_dict(), path)
     return path
 
 
@@ -220,16 +248,8 @@ def load_grid(loop: str, path: str | os.PathLike | None = None) -> Grid:
     path = Path(path) if path is not None else _grid_dir() / f"{fam}.json"
     if not path.exists():
         raise UserError(f"no {fam} grid at {path} (run `uavsim grid build --loop {fam}`)")
-    try:
-        d = json.loads(path.read_text())
-        h = d.pop("hash", "")
-        if h and h != _content_hash(d):
-            raise UserError(f"grid file {path} is corrupt (hash mismatch)")
-        if d.get("version") != GRID_VERSION:
-            raise UserError(f"grid file {path} has version {d.get('version')}, expected {GRID_VERSION}")
-        g = Grid.from_dict(d)
-    except (KeyError, ValueError, TypeError) as exc:
-        raise UserError(f"grid file {path} is malformed: {exc}") from exc
+    g, h = read_hashed_json(path, "grid", lambda d: None if d.get("version") == GRID_VERSION else
+                            f"has version {d.get('version')}, expected {GRID_VERSION}", Grid.from_dict)
     g.hash = h
     return g
 
