@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from uavsim.errors import UserError
 from uavsim.testbed.airframe import G, airframe_mjcf
 from uavsim.testbed.battery import BatteryPack
 from uavsim.testbed.hidden import CommandChain, HiddenEffect, MeasurementChain
@@ -80,7 +81,7 @@ class Flight:
 
     def __init__(self, vehicle: TestbedVehicle, loop: str, effects: list[HiddenEffect], rng: np.random.Generator):
         if loop not in TESTBED_LOOPS:
-            raise ValueError(f"loop must be one of {TESTBED_LOOPS}")
+            raise UserError(f"testbed: loop must be one of {', '.join(TESTBED_LOOPS)}, got {loop!r}")
         self.v = vehicle.check()
         self.loop = loop
         ap, af, pr = self.v.autopilot, self.v.airframe, self.v.propulsion

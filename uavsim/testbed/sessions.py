@@ -187,7 +187,7 @@ def _probe_noise(v: TestbedVehicle, loop: str, gains: dict[str, float], seed: in
 
 def plan_session(seed: int, kinds: tuple[str, ...] = KINDS, loop: str | None = None) -> SessionPlan:
     """Draw the vehicle, loop, kind and hidden effects of ``seed`` (no flight)."""
-    kinds = parse_kinds(",".join(kinds)) if not isinstance(kinds, tuple) else kinds
+    kinds = parse_kinds(",".join(kinds))
     rk = _rng(seed, 0)
     w = np.array([KIND_WEIGHTS[k] for k in kinds])
     kind = str(kinds[int(rk.choice(len(kinds), p=w / w.sum()))])
