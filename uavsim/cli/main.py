@@ -31,6 +31,7 @@ _COMMAND_MODULES = [
     "uavsim.cli.identify_cmd",
     "uavsim.cli.scenario_cmd",
     "uavsim.cli.gap_cmd",
+    "uavsim.cli.testbed_cmd",
     "uavsim.cli.replay_cmd",
     "uavsim.cli.bench_cmd",
 ]

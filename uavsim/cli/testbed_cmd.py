@@ -1,0 +1,139 @@
+"""``uavsim testbed``: "measured" sessions from a richer vehicle the workflow does not simulate.
+
+``sessions`` flies the testbed vehicle (``uavsim.testbed``) for each seed and
+writes ``DIR/tb_NNNNN/`` (a session without ``[model]``) and
+``DIR/tb_NNNNN.truth.json`` beside it, plus ``DIR/recipe.json`` (recipe,
+seeds, kinds). Same seed and kinds, same bytes. Development seeds 0-999;
+held-out seeds 10000-10099 are to be run once. ``equivalence`` measures the
+vehicles' relay cycles against their nearest lumped models. ``plan`` prints
+what a seed draws, without flying.
+
+    uavsim testbed sessions --seeds 0:12 --out out/testbed
+    uavsim testbed sessions --seeds 0:40 --out out/tb --kinds single,none --jobs 2
+    uavsim testbed equivalence --seeds 0:4 --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from uavsim.cli._common import eprint, print_json, print_table
+from uavsim.errors import UserError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("testbed", help="measured sessions from a richer vehicle (hidden effects, truth files)",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="testbed_command", metavar="ACTION")
+    sub.required = True
+    s = sub.add_parser("sessions", help="fly and write sessions + truth files for a seed range")
+    s.add_argument("--seeds", required=True, metavar="A:B", help="seeds A (included) to B (excluded), or one seed N")
+    s.add_argument("--out", required=True, metavar="DIR", help="folder for the sessions and truth files")
+    s.add_argument("--kinds", default="single,pair,outside,none", metavar="K,K",
+                   help="kinds to draw from: single, pair, outside, none (default: all)")
+    s.add_argument("--jobs", type=int, default=1, help="sessions flown at once (processes; default 1)")
+    s.add_argument("--json", action="store_true", help="print one JSON object (the set's index) on stdout")
+    s.set_defaults(func=sessions)
+    e = sub.add_parser("equivalence", help="relay cycles of the vehicles against their nearest lumped models")
+    e.add_argument("--seeds", default="0:3", metavar="A:B", help="vehicles of these seeds (default 0:3)")
+    e.add_argument("--loops", default="altitude,roll,pitch", help="loops to measure (default all three)")
+    e.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    e.set_defaults(func=equivalence)
+    q = sub.add_parser("plan", help="what a seed draws (kind, loop, effects, lumped equivalent), without flying")
+    q.add_argument("--seeds", required=True, metavar="A:B")
+    q.add_argument("--kinds", default="single,pair,outside,none", metavar="K,K")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=plan)
+
+
+def _one(args: tuple[int, str, tuple[str, ...]]) -> dict:
+    from uavsim.testbed.sessions import session_name, testbed_session, write_testbed
+
+    seed, out, kinds = args
+    t0 = time.perf_counter()
+    session, truth = testbed_session(seed, kinds)
+    write_testbed(session, truth, Path(out) / session_name(seed))
+    return {"name": truth.name, "seed": seed, "kind": truth.kind, "loop": truth.loop,
+            "effects": "+".join(truth.effect_names), "runs": len(session.runs),
+            "not_oscillating": sum(1 for r in truth.runs if r.get("oscillates") is False),
+            "crashed": any(r["crashed"] for r in truth.runs), "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def sessions(args: argparse.Namespace) -> int:
+    from uavsim.testbed.sessions import DEV_SEEDS, HELDOUT_SEEDS, RECIPE, parse_kinds, parse_seeds
+
+    seeds = parse_seeds(args.seeds)
+    kinds = parse_kinds(args.kinds)
+    if args.jobs < 1:
+        raise UserError(f"--jobs must be >= 1, got {args.jobs}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    work = [(s, str(out), kinds) for s in seeds]
+    rows = []
+    if args.jobs == 1:
+        for i, w in enumerate(work):
+            rows.append(_one(w))
+            eprint(f"[{i + 1}/{len(work)}] {rows[-1]['name']} {rows[-1]['kind']} {rows[-1]['loop']}: "
+                   f"{rows[-1]['effects']} ({rows[-1]['seconds']} s)")
+    else:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as ex:
+            for i, r in enumerate(ex.map(_one, work)):
+                rows.append(r)
+                eprint(f"[{i + 1}/{len(work)}] {r['name']} {r['kind']} {r['loop']}: {r['effects']} ({r['seconds']} s)")
+    recipe = {"recipe": RECIPE, "seeds": [seeds.start, seeds.stop], "kinds": list(kinds),
+              "dev_seeds": [DEV_SEEDS.start, DEV_SEEDS.stop], "heldout_seeds": [HELDOUT_SEEDS.start, HELDOUT_SEEDS.stop],
+              "sessions": [r["name"] for r in rows]}  # fmt: skip
+    (out / "recipe.json").write_text(json.dumps(recipe, indent=1) + "\n")
+    if args.json:
+        print_json({**recipe, "index": rows})
+    else:
+        print_table(rows)
+    return 0
+
+
+def equivalence(args: argparse.Namespace) -> int:
+    from uavsim.testbed.equivalence import measure_equivalence
+    from uavsim.testbed.sessions import parse_seeds
+    from uavsim.testbed.vehicle import TESTBED_LOOPS
+
+    seeds = parse_seeds(args.seeds)
+    loops = tuple(x.strip() for x in args.loops.split(",") if x.strip())
+    bad = [x for x in loops if x not in TESTBED_LOOPS]
+    if not loops or bad:
+        raise UserError(f"--loops: expected a subset of {','.join(TESTBED_LOOPS)}, got {args.loops!r}")
+    rows = []
+    for s in seeds:
+        rows += measure_equivalence(s, loops)
+        eprint(f"vehicle of seed {s} measured")
+    if args.json:
+        print_json({"rows": rows})
+    else:
+        cols = ["seed", "loop", "K", "T_prop", "T1", "tau", "period_err", "amp_err", "amp_true_err", "K_fit_err",
+                "tau_fit", "tau_fit_true_output", "gain_err_b030", "phase_err_b030_deg"]
+        print_table(rows, cols)
+    return 0
+
+
+def plan(args: argparse.Namespace) -> int:
+    from uavsim.testbed.sessions import parse_kinds, parse_seeds, plan_session
+
+    kinds = parse_kinds(args.kinds)
+    rows = []
+    for s in parse_seeds(args.seeds):
+        p = plan_session(s, kinds)
+        rows.append({"seed": s, "kind": p.kind, "loop": p.loop,
+                     "effects": "; ".join(f"{e.name} {e.params}" for e in p.effects) or "none",
+                     **{k: round(v, 4) for k, v in p.nominal.items()}, "period_s": round(p.scales.period_s, 3),
+                     "h": round(p.h, 4)})  # fmt: skip
+    if args.json:
+        print_json({"plans": rows})
+    else:
+        print_table(rows)
+    return 0
