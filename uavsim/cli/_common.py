@@ -7,7 +7,6 @@ import sys
 from typing import Any
 
 
-
 def _default(obj: Any) -> Any:
     import numpy as np
 

@@ -98,7 +98,16 @@ def export_model(net, meta: dict[str, Any], out_dir: str | os.PathLike) -> Path:
             warnings.simplefilter("ignore", DeprecationWarning)
             scripted = torch.jit.trace(exported.cpu(), example)
             _atomic_write_bytes(out / MODEL_FILE, lambda p: torch.jit.save(scripted, p))
-            _atomic_write_bytes(out / ONNX_FILE, lambda p: Path(p).write_bytes(_onnx_bytes(exported.cpu(), example)))
+            try:
+                onnx = _onnx_bytes(exported.cpu(), example)
+            except Exception as exc:  # noqa: BLE001 - an exporter gone from a newer torch must not lose the run
+                print(f"warning: no {ONNX_FILE} ({type(exc).__name__}: {exc}); the other files are complete",
+                      file=sys.stderr)
+                files.remove(ONNX_FILE)
+                if (out / ONNX_FILE).exists():
+                    (out / ONNX_FILE).unlink()
+            else:
+                _atomic_write_bytes(out / ONNX_FILE, lambda p: Path(p).write_bytes(onnx))
         layers = _numpy_layers(exported, meta)
         if layers is not None:
             _write_weights(out / WEIGHTS_FILE, layers)
