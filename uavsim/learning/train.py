@@ -163,10 +163,9 @@ def load_train_recipe(path: str | os.PathLike, overrides: dict[str, Any] | None 
     p = Path(path)
     if not p.is_file():
         raise UserError(f"training recipe {p} not found")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not valid TOML ({exc})") from None
+    from uavsim.schema import load_toml
+
+    doc = load_toml(p, "training")  # keys, types and ranges (uavsim.schema.training)
     flat: dict[str, Any] = {}
     for key, value in doc.items():
         if isinstance(value, dict):
