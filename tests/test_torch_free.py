@@ -154,3 +154,28 @@ def _assert_same_json(a, b, path="$"):
         assert a == pytest.approx(b, rel=1e-5, abs=1e-9), path
     else:
         assert a == b, path
+
+
+def test_identify_plot_and_training_curves(three_model, tmp_path, capsys):  # noqa: F811
+    """`uavsim identify --plot` writes the picture; training left its curves beside the network."""
+    from _learning_fixtures import CLASSES
+    from test_identify import _mujoco_session
+
+    import uavsim.cli.main as cli_main
+    from uavsim.formats.session import write_session
+
+    tmp, model, grid = three_model
+    sess = write_session(_mujoco_session(grid, CLASSES[1]), tmp_path / "session")
+    png = tmp_path / "id.png"
+    assert cli_main.main(["identify", str(sess), "--models", str(model), "--plot", str(png), "--json"]) == 0
+    ans = json.loads(capsys.readouterr().out)
+    assert ans["plot"] == str(png)
+    for p in (png, model / "training.png"):
+        data = p.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000, p
+    from uavsim.learning.figures import model_cycle
+
+    # the picture's model cycle is the identified model's own: its period is the measured one (exact lumped
+    # MRFT of the fitted model; NP-MRFT's observation window lengthens the measured cycle a little)
+    t, y, u = model_cycle(ans["params"], "altitude", grid.beta, 0.5, 200.0)
+    assert t[-1] / 3 == pytest.approx(ans["oscillation"]["period"], rel=0.1)

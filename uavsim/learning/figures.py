@@ -36,7 +36,7 @@ def model_cycle(params: dict[str, float], family: str, beta: float, h: float, ra
                 cycles: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The identified inner-loop model under a plain MRFT (``beta``, ``h``) at ``rate_hz``.
 
-    Returns ``t`` (s), ``y`` and ``u`` of the last two cycles, ``t`` starting at the
+    Returns ``t`` (s), ``y`` and ``u`` of the last three cycles, ``t`` starting at the
     relay's last switch up before them (so measured and model cycles line up).
     """
     from uavsim.lumped.simulate import simulate_relay_batch
@@ -50,7 +50,7 @@ def model_cycle(params: dict[str, float], family: str, beta: float, h: float, ra
     return _last_cycles(y, u, rate_hz)
 
 
-def _last_cycles(y: np.ndarray, u: np.ndarray, rate_hz: float, n: int = 2):
+def _last_cycles(y: np.ndarray, u: np.ndarray, rate_hz: float, n: int = 3):
     ups = np.flatnonzero((u[1:] > u[:-1]) & (np.abs(u[1:] - u[:-1]) > 0))
     if ups.size < n + 1:
         t = np.arange(y.size) / rate_hz
@@ -79,9 +79,9 @@ def identification_png(session: str | os.PathLike, ans: dict[str, Any], out: str
     run = next(r for r in s.runs if r.spec.file == ans["run"])
     rate = float(s.control_rate_hz)
     osc = ans["oscillation"]
-    # the segment identification used ends at ``stop`` (samples of the run): three cycles up to it
+    # the segment identification used ends at ``stop`` (samples of the run): four cycles up to it
     b = int(osc["stop"])
-    a = max(0, b - int(round(3 * float(osc["period"]) * rate)))
+    a = max(0, b - int(round(4 * float(osc["period"]) * rate)))
     y, u = np.asarray(run.data.y)[a:b], np.asarray(run.data.u)[a:b]
     t_m, y_m, u_m = _last_cycles(y, u, rate)
     fam = loop_family(s.loop)
@@ -93,14 +93,15 @@ def identification_png(session: str | os.PathLike, ans: dict[str, Any], out: str
     inner = fam in ("altitude", "attitude")
     if inner:
         t_s, y_s, _ = model_cycle(p, fam, beta, h, rate)
-        ax1.plot(t_s, y_s - np.mean(y_s), color="C1", lw=1.4, ls="--", label="identified model, same relay")
+        ax1.plot(t_s, y_s - np.mean(y_s), color="C1", lw=1.4, ls="--",
+                 label=f"identified model, plain MRFT (beta {beta:g}, h {h:g})")
     ax1.set_xlabel("time since the relay's switch up (s)")
     ax1.set_ylabel("y - mean (output units)")
     ax1r = ax1.twinx()
     ax1r.step(t_m, u_m, where="post", color="0.6", lw=0.8)
     ax1r.set_ylabel("u (command units)", color="0.5")
     ax1.set_title(f"{s.loop}: measured cycle {osc['period']:.3g} s, amplitude {osc['amplitude']:.3g}")
-    ax1.legend(loc="upper right", fontsize=8)
+    ax1.legend(loc="upper right", fontsize=7, framealpha=0.9)
 
     w0 = float(ans["response"]["omega"])
     resp = ans["response"]["gain"] * np.exp(1j * math.radians(ans["response"]["phase_deg"]))
@@ -118,8 +119,8 @@ def identification_png(session: str | os.PathLike, ans: dict[str, Any], out: str
              label=f"relay ray, beta = {beta:g}")
     ax2.axhline(0, color="0.85", lw=0.6)
     ax2.axvline(0, color="0.85", lw=0.6)
-    ax2.set_xlim(-r, 0.5 * r)
-    ax2.set_ylim(-r, 0.5 * r)
+    ax2.set_xlim(-r, 0.4 * r)
+    ax2.set_ylim(*((-0.4 * r, r) if G.imag > 0 else (-r, 0.4 * r)))
     ax2.set_aspect("equal")
     ax2.set_xlabel("Re G")
     ax2.set_ylabel("Im G")
