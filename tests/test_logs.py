@@ -202,3 +202,39 @@ def test_detect_relay_finds_the_longest_two_level_stretch():
     assert d["h"] == pytest.approx(0.2) and d["bias"] == pytest.approx(0.5)
     assert d["start"] == pytest.approx(2.0) and d["stop"] == pytest.approx(7.99) and d["switches"] == 23
     assert detect_relay(t, np.sin(t)) is None
+
+
+def test_ros2_bag_round_trip(flight, tmp_path):
+    """A ROS 2 bag (rosbags' writer): y from a PoseStamped (header stamp), r and u from Float64 topics."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    f64, pose_t = store.types["std_msgs/msg/Float64"], store.types["geometry_msgs/msg/PoseStamped"]
+    hdr, stamp_t = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    point, quat = store.types["geometry_msgs/msg/Point"], store.types["geometry_msgs/msg/Quaternion"]
+    pose = store.types["geometry_msgs/msg/Pose"]
+    s = flight["session"]
+    _, tick, r, y, u = _ticks(s.runs[0], s.control_rate_hz)
+    bag = tmp_path / "bag"
+    with Writer(bag, version=8) as w:
+        cy = w.add_connection("/mavros/local_position/pose", pose_t.__msgtype__, typestore=store)
+        cr = w.add_connection("/relay/r", f64.__msgtype__, typestore=store)
+        cu = w.add_connection("/relay/u", f64.__msgtype__, typestore=store)
+        for k in range(tick.size):
+            ns = int(tick[k]) * 1000
+            msg = pose_t(header=hdr(stamp=stamp_t(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="map"),
+                         pose=pose(position=point(x=0.0, y=0.0, z=float(y[k])), orientation=quat(x=0.0, y=0.0, z=0.0,
+                                                                                                  w=1.0)))
+            w.write(cy, ns, store.serialize_cdr(msg, pose_t.__msgtype__))
+            w.write(cr, ns, store.serialize_cdr(f64(data=float(r[k])), f64.__msgtype__))
+            w.write(cu, ns + 300_000, store.serialize_cdr(f64(data=float(HOVER + u[k])), f64.__msgtype__))
+    ans = import_log(bag, tmp_path / "s", loop="altitude", r="/relay/r.data",
+                     y="/mavros/local_position/pose.pose.position.z", u="/relay/u.data", **_spec(flight))
+    assert ans["format"] == "rosbag"
+    run = read_session(tmp_path / "s").runs[0]
+    np.testing.assert_array_equal(run.data.y, s.runs[0].data.y[: run.data.t.size])  # float64 all the way
+    _same_identification(identify_session(tmp_path / "s", model_dir=flight["model"]), flight["answer"])
+    with pytest.raises(UserError, match="no number at 'pose.position.w'"):
+        import_log(bag, tmp_path / "s2", loop="altitude", r="/relay/r.data", y="/mavros/local_position/pose.pose"
+                   ".position.w", u="/relay/u.data", **_spec(flight))
