@@ -479,8 +479,8 @@ def cluster_versions(client) -> dict[str, str]:
     for addr, v in sorted(theirs.items()):
         diff = [k for k in MATCHED_VERSIONS if v.get(k) != mine.get(k)]
         if diff:
-            show = lambda d: ", ".join(f"{k} {d.get(k)}" for k in diff)  # noqa: E731
-            raise UserError(f"Dask worker {addr} runs {show(v)}, this client {show(mine)}: install the same "
+            w, c = (", ".join(f"{k} {d.get(k)}" for k in diff) for d in (v, mine))
+            raise UserError(f"Dask worker {addr} runs {w}, this client {c}: install the same "
                             "versions on every worker (the episodes depend on them)")
     first = theirs[sorted(theirs)[0]]
     return {**first, "h5py": mine["h5py"]}
