@@ -9,7 +9,6 @@ vocabulary; the loader of the kind must either accept the file or raise a
 from __future__ import annotations
 
 import copy
-import datetime as dt
 import json
 import math
 import os
@@ -19,6 +18,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_session import to_toml  # TOML text of any test document
 
 import uavsim.cli.main as cli_main
 from uavsim.errors import UserError
@@ -42,45 +42,6 @@ def base_doc(kind: str) -> dict:
     if kind == "gap-model":
         return copy.deepcopy(GAP_MODEL)
     return tomllib.loads(SHIPPED[kind].read_text())
-
-
-# ---------------------------------------------------------------------------------------------
-# TOML text for test documents (any nesting: tables, arrays of tables, inline values)
-
-
-def _key(k: str) -> str:
-    import re
-
-    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
-
-
-def _value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + "}"
-    if isinstance(v, dt.date | dt.time):
-        return v.isoformat()
-    raise TypeError(type(v))
-
-
-def to_toml(doc: dict) -> str:
-    head, tail = [], []
-    for k, v in doc.items():
-        if isinstance(v, dict) and all(not isinstance(x, dict) for x in v.values()):
-            tail += ["", f"[{_key(k)}]"] + [f"{_key(a)} = {_value(b)}" for a, b in v.items()]
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            for item in v:
-                tail += ["", f"[[{_key(k)}]]"] + [f"{_key(a)} = {_value(b)}" for a, b in item.items()]
-        else:
-            head.append(f"{_key(k)} = {_value(v)}")
-    return "\n".join(head + tail) + "\n"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,11 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from _learning_fixtures import three_model  # noqa: F401 (fixture)
+from _learning_fixtures import three_model, trained_like_net  # noqa: F401 (fixture)
 
 from uavsim.errors import UserError
 from uavsim.learning.export import ONNX_FILE, WEIGHTS_FILE, Predictor, export_model, write_weights
-from uavsim.learning.model import IdentNet, NetConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 META = {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}
@@ -38,24 +37,11 @@ def _run_without_torch(code: str, *args: str) -> subprocess.CompletedProcess:
                           env=env, timeout=300, cwd=ROOT)
 
 
-def _trained_like_net(period_features: int = 8) -> IdentNet:
-    torch.manual_seed(0)
-    net = IdentNet(NetConfig(2, 40, 5, hidden=[64, 32], period_features=period_features))
-    with torch.no_grad():  # running statistics far from the identity, as after training
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm1d):
-                m.running_mean.uniform_(-2, 2)
-                m.running_var.uniform_(0.1, 4)
-                m.weight.uniform_(0.5, 2)
-                m.bias.uniform_(-1, 1)
-    return net.eval()
-
-
 @pytest.mark.parametrize("period_features", [8, 0])
 def test_weights_and_onnx_equal_torch(tmp_path, period_features):
     import onnxruntime as ort
 
-    net = _trained_like_net(period_features)
+    net = trained_like_net(period_features=period_features)
     x = torch.randn(16, 2, 40)
     x[:, 1] = torch.sign(x[:, 1])  # the relay channel: +-1, its length feeds the period features
     x[:8, 1, 25:] = 0.0
@@ -79,7 +65,7 @@ def test_weights_and_onnx_equal_torch(tmp_path, period_features):
 
 def test_network_exported_before_weights_npz(tmp_path):
     """A TorchScript-only folder still loads with torch, says how to upgrade without it, and upgrades."""
-    net = _trained_like_net()
+    net = trained_like_net()
     export_model(net, META, tmp_path)
     x = np.random.default_rng(0).standard_normal((3, 2, 40)).astype(np.float32)
     want = Predictor(tmp_path).activations(x)
@@ -101,7 +87,7 @@ def test_network_exported_before_weights_npz(tmp_path):
 
 
 def test_bad_weights_file_is_one_line_error(tmp_path):
-    export_model(_trained_like_net(), META, tmp_path)
+    export_model(trained_like_net(), META, tmp_path)
     (tmp_path / WEIGHTS_FILE).write_bytes(b"not a zip")
     with pytest.raises(UserError, match="not a weights file") as info:
         Predictor(tmp_path)

@@ -11,7 +11,7 @@ loaded on first use so that ``import uavsim`` stays light):
 
 Functions: ``identify_session``, ``plot_identification``, ``tune``, ``generate``,
 ``train``, ``gap``, ``import_log``, ``export_gains``, ``read_session``,
-``write_session``, ``schema``; ``UserError`` is what bad input raises.
+``write_session``, ``json_schema``; ``UserError`` is what bad input raises.
 
 Each concern is one subpackage:
 
@@ -33,7 +33,7 @@ from uavsim.errors import UserError
 __version__ = "0.1.0"
 
 _API = ("identify_session", "plot_identification", "tune", "generate", "train", "gap", "import_log", "export_gains",
-        "read_session", "write_session", "schema")
+        "read_session", "write_session", "json_schema")
 
 __all__ = ["__version__", "UserError", *_API]
 

@@ -21,7 +21,7 @@ import os
 from typing import Any
 
 __all__ = ["identify_session", "plot_identification", "tune", "generate", "train", "gap", "import_log",
-           "export_gains", "read_session", "write_session", "schema"]
+           "export_gains", "read_session", "write_session", "json_schema"]
 
 PathLike = str | os.PathLike
 
@@ -208,8 +208,9 @@ def write_session(session, path: PathLike):
     return _write(session, path)
 
 
-def schema(kind: str) -> dict[str, Any]:
-    """The JSON Schema of a TOML file kind: session, dataset, training, scenario, gap-model."""
-    from uavsim.schema import json_schema
+def json_schema(kind: str) -> dict[str, Any]:
+    """The JSON Schema of a TOML file kind: session, dataset, training, scenario, gap-model
+    (``uavsim schema KIND``; the ``uavsim.schema`` package holds the schemas themselves)."""
+    from uavsim.schema import json_schema as _schema
 
-    return json_schema(kind)
+    return _schema(kind)

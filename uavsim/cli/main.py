@@ -20,6 +20,7 @@ import os
 import sys
 
 from uavsim import __version__
+from uavsim.cli._common import register_modules
 from uavsim.errors import UserError
 
 #: command name -> (module that registers it, one-line help for ``uavsim --help``), in --help order
@@ -67,20 +68,12 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     sub.required = True
     chosen = _chosen(argv) if argv is not None else None
     by_module = {mod: (name, text) for name, (mod, text) in COMMANDS.items()}
-    import importlib
-
     for mod_name in _COMMAND_MODULES:
         name, text = by_module.get(mod_name, (mod_name.rsplit(".", 1)[-1].removesuffix("_cmd"), ""))
         if argv is not None and name != chosen:
             sub.add_parser(name, help=text, add_help=False)
-            continue
-        try:
-            mod = importlib.import_module(mod_name)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod_name:
-                raise
-            continue
-        mod.register(sub)
+        else:
+            register_modules(sub, [mod_name])
     return parser
 
 

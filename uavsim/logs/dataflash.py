@@ -3,20 +3,15 @@
 from __future__ import annotations
 
 import contextlib
-import difflib
 import io
 from pathlib import Path
 
 import numpy as np
 
 from uavsim.logs.importer import LogError
+from uavsim.logs.importer import hint as _hint
 
 __all__ = ["read"]
-
-
-def _hint(name: str, known) -> str:
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    return f"did you mean {close[0]!r}? " if close else ""
 
 
 def read(path: Path, wanted: dict[str, list[str]]) -> dict[str, tuple[np.ndarray, dict[str, np.ndarray]]]:

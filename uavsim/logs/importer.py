@@ -13,10 +13,18 @@ import numpy as np
 
 from uavsim.errors import UserError
 
-__all__ = ["FORMATS", "PRESETS", "LogError", "Preset", "FieldSpec", "detect_format", "parse_field", "read_series",
+__all__ = ["FORMATS", "PRESETS", "LogError", "hint", "Preset", "FieldSpec", "detect_format", "parse_field", "read_series",
            "sample_on_grid", "detect_relay", "import_log"]
 
 FORMATS = ("ulog", "dataflash", "rosbag")
+
+
+def hint(name: str, known) -> str:
+    """``did you mean 'x'? `` for the known name closest to ``name``, or ''."""
+    import difflib
+
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f"did you mean {close[0]!r}? " if close else ""
 
 
 class LogError(UserError):
@@ -327,27 +335,21 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
         rate_hz = float(round(1.0 / float(np.median(np.diff(t_u))), 3))
         detected["rate_hz"] = rate_hz
         say(f"control rate {rate_hz:g} Hz (u's median logging step; pass --rate to set it)")
-    if h is None or bias is None:
+    given = {"h": h, "bias": bias, "start": start, "stop": stop}
+    for keys, why in ((("h", "bias"), f"no relay in u ({names['u']}): it never holds two levels for 6 switches; "
+                                      "pass --h and --bias (and --start/--stop)"),
+                      (("start", "stop"), "no relay segment found in u; pass --start and --stop (s, log time)")):
+        if all(given[k] is not None for k in keys):
+            continue
         if relay is None:
-            raise LogError(f"{path}: no relay in u ({names['u']}): it never holds two levels for 6 switches; "
-                           "pass --h and --bias (and --start/--stop)")
-        if h is None:
-            h = relay["h"]
-            detected["h"] = h
-        if bias is None:
-            bias = relay["bias"]
-            detected["bias"] = bias
-        say(f"relay levels detected in u: h = {h:.6g}, bias = {bias:.6g} ({relay['switches']} switches)")
-    if start is None or stop is None:
-        if relay is None:
-            raise LogError(f"{path}: no relay segment found in u; pass --start and --stop (s, log time)")
-        if start is None:
-            start = relay["start"]
-            detected["start"] = start
-        if stop is None:
-            stop = relay["stop"]
-            detected["stop"] = stop
-        say(f"relay segment t = {start:.6g} .. {stop:.6g} s")
+            raise LogError(f"{path}: {why}")
+        for k in keys:
+            if given[k] is None:
+                given[k] = detected[k] = relay[k]
+        say(f"relay levels detected in u: h = {given['h']:.6g}, bias = {given['bias']:.6g} "
+            f"({relay['switches']} switches)" if keys[0] == "h" else
+            f"relay segment t = {given['start']:.6g} .. {given['stop']:.6g} s")
+    h, bias, start, stop = (given[k] for k in ("h", "bias", "start", "stop"))
     if not stop > start:
         raise LogError(f"--start {start} must be before --stop {stop}")
     grid, cols = sample_on_grid(series, rate_hz, start, stop, str(path))

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import difflib
 import re
 from pathlib import Path
 
 import numpy as np
 
-from uavsim.logs.importer import LogError
+from uavsim.logs.importer import LogError, hint
 
 __all__ = ["read"]
 
@@ -40,9 +39,7 @@ def read(path: Path, wanted: dict[str, list[str]]) -> dict[str, tuple[np.ndarray
             topics = {c.topic for c in reader.connections}
             for topic, fields in wanted.items():
                 if topic not in topics:
-                    close = difflib.get_close_matches(topic, sorted(topics), n=1, cutoff=0.6)
-                    hint = f"did you mean {close[0]!r}? " if close else ""
-                    raise LogError(f"{path}: no topic {topic!r} in the bag ({hint}topics: "
+                    raise LogError(f"{path}: no topic {topic!r} in the bag ({hint(topic, sorted(topics))}topics: "
                                    f"{', '.join(sorted(topics)[:10])})")
                 conns = [c for c in reader.connections if c.topic == topic]
                 t, rows = [], []

@@ -144,22 +144,16 @@ def load_toml(path: str | os.PathLike, kind: str) -> dict[str, Any]:
 # Error messages: the first problem, ``key.path: what``, with the closest key for an unknown one
 
 
-def _short(v: Any, limit: int = 40) -> str:
-    text = repr(v)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+def _short(v: Any) -> str:
+    from uavsim.formats.session import _short as short
+
+    return short(v)
 
 
 def _type_word(v: Any) -> str:
-    import datetime as dt
+    from uavsim.formats.session import _type_name
 
-    if isinstance(v, bool):
-        return "boolean"
-    for t, w in ((int, "integer"), (float, "float"), (str, "string"), (list, "array"), (dict, "table")):
-        if isinstance(v, t):
-            return w
-    if isinstance(v, dt.date | dt.time):
-        return "date/time"
-    return type(v).__name__
+    return _type_name(v)
 
 
 def _unwrap(ann: Any) -> Any:
