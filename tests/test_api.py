@@ -16,6 +16,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_api_functions_are_documented_at_the_top_level():
+    import pkgutil
+
+    # a subpackage imported later would shadow a function of its name
+    subpackages = {m.name for m in pkgutil.iter_modules(uavsim.__path__)}
+    assert not subpackages & set(uavsim._API)
     for name in uavsim._API:
         f = getattr(uavsim, name)
         assert callable(f) and f.__doc__ and len(f.__doc__.strip()) > 40, name

@@ -10,7 +10,7 @@ loaded on first use so that ``import uavsim`` stays light):
     uavsim.tune("roll", T_prop=0.05, T1=0.4, tau=0.01, K=40.0)
 
 Functions: ``identify_session``, ``plot_identification``, ``tune``, ``generate``,
-``train``, ``gap``, ``import_log``, ``export_gains``, ``read_session``,
+``train``, ``find_gap``, ``import_log``, ``export_gains``, ``read_session``,
 ``write_session``, ``json_schema``; ``UserError`` is what bad input raises.
 
 Each concern is one subpackage:
@@ -32,7 +32,7 @@ from uavsim.errors import UserError
 
 __version__ = "0.1.0"
 
-_API = ("identify_session", "plot_identification", "tune", "generate", "train", "gap", "import_log", "export_gains",
+_API = ("identify_session", "plot_identification", "tune", "generate", "train", "find_gap", "import_log", "export_gains",
         "read_session", "write_session", "json_schema")
 
 __all__ = ["__version__", "UserError", *_API]

@@ -2,7 +2,8 @@
 
 Each function takes paths or plain values, returns plain data (dicts of floats,
 the JSON the matching command prints with ``--json``) or the project's result
-objects, and raises ``uavsim.UserError`` (one line) on bad input. ``import
+objects (no function shares a name with a subpackage: ``uavsim.gap`` is the package,
+``uavsim.find_gap`` the function), and raises ``uavsim.UserError`` (one line) on bad input. ``import
 uavsim`` stays light: each function imports what it needs when called, and
 identification needs neither torch nor the training code.
 
@@ -20,7 +21,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-__all__ = ["identify_session", "plot_identification", "tune", "generate", "train", "gap", "import_log",
+__all__ = ["identify_session", "plot_identification", "tune", "generate", "train", "find_gap", "import_log",
            "export_gains", "read_session", "write_session", "json_schema"]
 
 PathLike = str | os.PathLike
@@ -129,7 +130,7 @@ def train(recipe: PathLike, *, resume: bool = False, quiet: bool = True) -> list
     return train_from_recipe(recipe, resume=resume, quiet=quiet)
 
 
-def gap(session: PathLike, *, model: PathLike | None = None, seed: int = 0) -> dict[str, Any]:
+def find_gap(session: PathLike, *, model: PathLike | None = None, seed: int = 0) -> dict[str, Any]:
     """Which physical effect the session's model lacks (``uavsim gap --json``).
 
     Parameters
