@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q torch==2.13.0
-	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(BIN)/python -m pip install -q -e ".[dev]"   # dev = train (torch), logs, dask and the test tools
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -33,7 +33,8 @@ demo: $(STAMP)
 	@echo "== DNN-NP-MRFT end to end on the small embedded default: generate -> train -> identify"
 	$(BIN)/uavsim generate datasets/small.toml --out datasets/small.h5
 	$(BIN)/uavsim train training/small.toml
-	$(BIN)/uavsim identify scenarios/sessions/altitude-npmrft --models training/runs/small
+	$(BIN)/uavsim identify scenarios/sessions/altitude-npmrft --models training/runs/small --plot $(OUT)/identify.png
+	@echo "(picture: $(OUT)/identify.png; training curves: training/runs/small/training.png)"
 	@echo "(truth of that session:)"; cat scenarios/sessions/altitude-npmrft.truth.json; echo
 	@echo "== relay (MRFT beta=-0.73) on each loop of the MuJoCo hexarotor, against the exact lumped cycle"
 	$(BIN)/uavsim sim relay --duration 15 --session $(OUT)/demo-sessions

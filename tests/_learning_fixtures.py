@@ -71,6 +71,25 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
     return write_dataset(path, eps, classes, tiny_J(n_classes), attrs)
 
 
+def trained_like_net(hidden=(64, 32), period_features: int = 8, seed: int = 0):
+    """An ``IdentNet`` (2 x 40 inputs, 5 classes) in eval mode whose BatchNorms are far from the identity,
+    as after training: running statistics, scales and shifts drawn at random."""
+    import torch
+
+    from uavsim.learning.model import IdentNet, NetConfig
+
+    torch.manual_seed(seed)
+    net = IdentNet(NetConfig(2, 40, 5, hidden=list(hidden), period_features=period_features))
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.uniform_(-2, 2)
+                m.running_var.uniform_(0.1, 4)
+                m.weight.uniform_(0.5, 2)
+                m.bias.uniform_(-1, 1)
+    return net.eval()
+
+
 #: altitude classes with periods 0.26, 0.60, 1.27 s
 CLASSES = [153, 76, 10]
 

@@ -20,7 +20,10 @@ def test_minimal_defaults():
 
 @pytest.mark.parametrize("text, needle", [
     (MINIMAL + "[test]\nbetta = -0.7\n", "test.betta"),
-    ("colour = 1\n" + MINIMAL, "'colour'"),
+    ("colour = 1\n" + MINIMAL, "colour: unknown key"),
+    (MINIMAL + "[[effects]]\nname = 'delay'\ndleay = 0.01\n", "effects[0].dleay: unknown key (did you mean 'delay'?)"),
+    (MINIMAL + "[[effects]]\nname = 'delay'\ndelay = [0.01, -0.1]\n", "reversed"),
+    (MINIMAL + "[[effects]]\nname = 'delay'\ndelay = [-0.1, 0.01]\n", "effects[0]: effect delay: delay must be >= 0"),
     (MINIMAL + "[noise]\nkinds = ['pink']\n", "noise.kinds"),
     (MINIMAL + "[noise]\nlevel = [0.0, 0.3]\n", "noise.level"),
     (MINIMAL + "[randomize]\nbias = 0.7\n", "randomize.bias"),

@@ -136,7 +136,7 @@ def test_model_file(tmp_path):
     m = read_model_file(f, "altitude")
     assert (m.K, m.noise_std) == (2.0, 0.0)
     f.write_text("[model]\nK = 2.0\nT_prop = 0.1\nT1 = 0.8\ntau = 0.02\nTprop = 3\n")
-    with pytest.raises(UserError, match="unknown model key 'Tprop'"):
+    with pytest.raises(UserError, match=r"model\.Tprop: unknown key \(did you mean 'T_prop'\?\)"):
         read_model_file(f, "altitude")
     f.write_text("[model]\nK = 2.0\nT_prop = -0.1\nT1 = 0.8\ntau = 0.02\n")
     with pytest.raises(UserError, match="T_prop"):

@@ -138,18 +138,12 @@ def test_missing_dataset_is_user_error(tmp_path):
 
 def test_export_folds_batchnorm_exactly(tmp_path):
     """The exported network (BatchNorm folded into the next Linear) gives the trained network's outputs."""
+    from _learning_fixtures import trained_like_net
+
     from uavsim.learning.export import export_model
     from uavsim.learning.model import IdentNet, NetConfig
 
-    torch.manual_seed(0)
-    net = IdentNet(NetConfig(2, 40, 5, hidden=[64, 32], period_features=8))
-    with torch.no_grad():  # running statistics far from the identity, as after training
-        for m in net.modules():
-            if isinstance(m, torch.nn.BatchNorm1d):
-                m.running_mean.uniform_(-2, 2)
-                m.running_var.uniform_(0.1, 4)
-                m.weight.uniform_(0.5, 2)
-                m.bias.uniform_(-1, 1)
+    net = trained_like_net()  # running statistics far from the identity, as after training
     x = torch.randn(16, 2, 40)
     with torch.no_grad():
         want = net.eval()(x).numpy()

@@ -35,8 +35,8 @@ def _doc(**changes):
 
 @pytest.mark.parametrize("change, match", [
     ({"speed": 3}, "unknown key"),
-    ({"camera.focal": 500.0}, "unknown parameter"),
-    ({"camera.preset": "ir"}, "unknown camera preset"),
+    ({"camera.focal": 500.0}, "camera.focal: unknown key"),
+    ({"camera.preset": "ir"}, "camera.preset: unknown value 'ir'"),
     ({"identification.bta": -0.7}, "unknown key"),
     ({"identification.beta": -1.2}, "beta"),
     ({"identification.method": "magic"}, "method"),
@@ -45,10 +45,10 @@ def _doc(**changes):
     ({"estimator": "ekf"}, "estimator"),
     ({"loops": ["yaw"]}, "loops"),
     ({"format": "uavsim-scenario/2"}, "format"),
-    ({"truth.altitude.T_prop": -0.1}, "time constants"),
+    ({"truth.altitude.T_prop": -0.1}, "truth.altitude.T_prop: must be > 0"),
     ({"truth.altitude.Tprop": 0.1}, "unknown key"),
     ({"seed": -3}, "seed"),
-    ({"imu.noise_std_mps2": "high"}, "finite number"),
+    ({"imu.noise_std_mps2": "high"}, "imu.noise_std_mps2: must be a number, got string 'high'"),
 ])
 def test_strict_errors(change, match):
     with pytest.raises(UserError, match=match):

@@ -3,8 +3,8 @@
 One identification is what ``uavsim identify`` does after reading the session:
 preprocessing of a relay run (``uavsim.data.preprocess.features``: edges, last
 cycle, normalization, fundamental response) plus the exported network
-(``Predictor``: the folded weights of the TorchScript file run as a numpy
-matmul chain) on one input, plus the candidates' harmonic ranking, model fits
+(``Predictor``: the folded weights of ``weights.npz`` run as a numpy
+matmul chain, no torch) on one input, plus the candidates' harmonic ranking, model fits
 and the gain decision (``decide_gains``). The goal (issue 6) is on preprocessing plus network
 (``preprocess_plus_network``); the whole identification is reported beside
 it. Each is timed ``--reps`` times on a 10 s,
@@ -15,7 +15,9 @@ The same-run baseline is a bare numpy float32 forward pass of the same layer
 sizes (three matmuls and two ReLUs, no BatchNorm, no bias, no period
 features): the floor an implementation of this network can reach on this
 machine; the network stage is that plus the period features and biases. The table gives median and p95 (ms)
-of each stage and the ratio of the whole identification to the baseline.
+of each stage and the ratio of the whole identification to the baseline,
+and ``onnxruntime_network``: the same network from ``model.onnx`` on onnxruntime
+with ``--threads`` threads (when onnxruntime is installed).
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 uavsim bench infer --json
     uavsim bench infer --models training/runs/altitude --reps 500
@@ -124,6 +126,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
                         np.maximum(h, 0.0, out=h)
             t4 = time.perf_counter()
             t_pre[i], t_net[i], t_all[i], t_base[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3
+        onnx = _onnx_stats(d, x0, reps, threads)
     out = {
         "trained_model": trained, "model_dir": str(d) if trained else "(random weights, same shape)",
         "input": [pred.channels, L], "n_classes": pred.n_classes, "threads": torch.get_num_threads(), "reps": reps,
@@ -136,7 +139,30 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         out["ratio_identification_to_baseline"] = out["identification"]["median_ms"] / out[
             "baseline_numpy_forward"]["median_ms"]
     out["meets_goal"] = out["preprocess_plus_network"]["median_ms"] <= GOAL_MS
+    out["onnxruntime_network"] = onnx
     return out
+
+
+def _onnx_stats(d: Path, x0: np.ndarray, reps: int, threads: int) -> dict[str, float] | None:
+    """The same forward pass on ``model.onnx`` with onnxruntime on ``threads`` threads (None without either)."""
+    if not (d / "model.onnx").is_file():
+        return None
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        return None
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = so.inter_op_num_threads = max(1, int(threads))
+    sess = ort.InferenceSession(str(d / "model.onnx"), so, providers=["CPUExecutionProvider"])
+    x = np.ascontiguousarray(x0[None], dtype=np.float32)
+    for _ in range(20):
+        sess.run(None, {"x": x})
+    t = np.empty(reps)
+    for i in range(reps):
+        t0 = time.perf_counter()
+        sess.run(None, {"x": x})
+        t[i] = time.perf_counter() - t0
+    return _stats(t)
 
 
 def _linear_layers(pred) -> list:

@@ -6,10 +6,10 @@ import json
 import sys
 from typing import Any
 
-import numpy as np
-
 
 def _default(obj: Any) -> Any:
+    import numpy as np
+
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):

@@ -15,6 +15,7 @@ then hold ``T2`` and the outer delay ``tau`` with the attitude loop's
 
     uavsim identify scenarios/sessions/altitude-npmrft --json
     uavsim identify SESSION --models training/runs/small --write-model
+    uavsim identify SESSION --plot identify.png
     uavsim identify LATERAL_SESSION --attitude-class 17 --json
 """
 
@@ -37,6 +38,8 @@ def register(subparsers) -> None:
                         "(from `uavsim identify` of its session); picks the network lateral/aNN")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
+    p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
+                                                 "model's, and the measured point on the model's Nyquist plot")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -49,6 +52,11 @@ def run(args: argparse.Namespace) -> int:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)
         eprint(f"wrote [model] to {folder}/session.toml")
+    if args.plot:
+        from uavsim.learning.figures import identification_png
+
+        ans["plot"] = str(identification_png(args.session, ans, args.plot))
+        eprint(f"wrote {args.plot}")
     if args.json:
         print_json(ans)
         return 0

@@ -27,6 +27,12 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        from uavsim.errors import UserError
+
+        raise UserError("training needs torch: pip install 'uavsim[train]' (identification does not)") from None
     from uavsim.learning.train import train_from_recipe
 
     overrides = {"epochs": args.epochs} if args.epochs else None

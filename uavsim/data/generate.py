@@ -461,6 +461,31 @@ def versions() -> dict[str, str]:
             "h5py": h5py.__version__, "uavsim": getattr(uavsim, "__version__", "unknown")}
 
 
+#: versions a Dask worker must share with the client (they change the simulated episodes)
+MATCHED_VERSIONS = ("uavsim", "mujoco", "numpy")
+
+
+def cluster_versions(client) -> dict[str, str]:
+    """The Dask workers' ``versions()``, refused (``UserError``) where uavsim, MuJoCo or numpy differ from this
+    process's; the result (what the file records) is the workers', with this process's h5py (it writes the file)."""
+    mine = versions()
+    try:
+        theirs = client.run(versions)
+    except Exception as exc:  # noqa: BLE001 - a worker that cannot import uavsim fails here, with any error
+        raise UserError(f"the Dask workers cannot report their versions ({type(exc).__name__}: {exc}); "
+                        "install this uavsim on every worker") from None
+    if not theirs:
+        raise UserError("the Dask cluster has no workers")
+    for addr, v in sorted(theirs.items()):
+        diff = [k for k in MATCHED_VERSIONS if v.get(k) != mine.get(k)]
+        if diff:
+            w, c = (", ".join(f"{k} {d.get(k)}" for k in diff) for d in (v, mine))
+            raise UserError(f"Dask worker {addr} runs {w}, this client {c}: install the same "
+                            "versions on every worker (the episodes depend on them)")
+    first = theirs[sorted(theirs)[0]]
+    return {**first, "h5py": mine["h5py"]}
+
+
 def git_commit() -> str:
     """Commit of the uavsim checkout ("unknown" outside git), read-only."""
     root = Path(__file__).resolve().parents[2]
@@ -472,7 +497,8 @@ def git_commit() -> str:
     return out.stdout.strip() if out.returncode == 0 else "unknown"
 
 
-def _assemble(plan: Plan, results: dict[int, dict], out: Path) -> dict[str, Any]:
+def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict[str, str] | None = None
+              ) -> dict[str, Any]:
     n = plan.n
     r = plan.recipe
     C, L = len(preprocess.CHANNELS), plan.L
@@ -519,7 +545,7 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path) -> dict[str, Any]
              "dt": r.episodes.dt, "input_length": L, "input_rate_hz": preprocess.INPUT_RATE_HZ,
              "channels": list(preprocess.CHANNELS), "cycles_per_input": r.preprocess.cycles,
              "noise_kinds": list(r.noise.kinds), "recipe": r.text, "seed": r.seed,
-             "versions": json.dumps(versions(), sort_keys=True), "git_commit": git_commit(), "n_episodes": nt,
+             "versions": json.dumps(run_versions or versions(), sort_keys=True), "git_commit": git_commit(), "n_episodes": nt,
              "n_diverged": n_div, "n_rejected": int(nt - n_div - len(keep)),
              "simulated_s": float(sum(len(c) * d for c, d in zip(plan.chunks, plan.durations, strict=True)))}
     if plan.att_class is not None:
@@ -578,6 +604,9 @@ def generate(recipe: Recipe, out_path: str | Path | None = None, *, backend: str
     summary: dict[str, Any] = {"files": [], "n_episodes": 0, "n_kept": 0, "n_diverged": 0, "n_rejected": 0,
                                "simulated_s": 0.0, "episodes_run": 0}
     try:
+        # the chunks are simulated where they run: a cluster must run this uavsim, MuJoCo and numpy,
+        # and the file records the workers' versions
+        run_versions = cluster_versions(client) if client is not None else None
         for att, out in output_paths(recipe, out_path, grid):
             plan = make_plan(recipe, grid, att)
             state = _Resume(out, plan)
@@ -607,7 +636,7 @@ def generate(recipe: Recipe, out_path: str | Path | None = None, *, backend: str
                           f"{state.dir}; run the same command again to continue", file=sys.stderr, flush=True)
                 raise
             results = {i: state.load(i) for i in range(len(plan.chunks))}
-            s = _assemble(plan, results, out)
+            s = _assemble(plan, results, out, run_versions)
             state.clear()
             summary["files"].append(s["file"])
             for k in ("n_episodes", "n_kept", "n_diverged", "n_rejected"):

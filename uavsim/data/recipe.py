@@ -226,6 +226,9 @@ def parse_recipe(text: str, source: str = "<recipe>", name: str = "recipe") -> R
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise UserError(f"{src}: not valid TOML: {exc}") from None
+    from uavsim.schema import validate
+
+    validate("dataset", doc, src)  # keys, types, ranges and each effect's parameters (uavsim.schema.dataset)
     for k in doc:
         if k not in _TOP:
             raise UserError(f"{src}: unknown key {k!r} (known: {', '.join(_TOP)})")

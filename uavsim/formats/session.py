@@ -724,6 +724,10 @@ def read_session(path: str | os.PathLike) -> Session:
     seen: dict[str, int] = {}
     for i, spec in enumerate(specs):
         _check_duplicate(seen, spec.file, i, f"{where}: [[runs]] #{i + 1}")
+    from uavsim.schema import validate
+
+    # the checks above give the hints; the schema (uavsim.schema.session) is what the file must be
+    validate("session", doc, where)
     runs = [Run(spec, read_run_csv(folder / spec.file, rate)) for spec in specs]
     return Session(loop=loop, control_rate_hz=rate, runs=runs, model=model,
                    effects=effects, path=folder)  # fmt: skip

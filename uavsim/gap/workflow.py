@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -134,21 +133,13 @@ class GapResult:
 
 def read_model_file(path: str | Path, loop: str) -> ModelSpec:
     """Read a model TOML (a ``[model]`` table, or its keys at top level) and check it for ``loop``."""
+    from uavsim.schema import load_toml
+
     p = Path(path)
     where = str(p)
-    try:
-        doc = tomllib.loads(p.read_text())
-    except OSError as exc:
-        raise UserError(f"{where}: cannot read the model file ({exc.strerror or exc})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{where}: not valid TOML ({exc})") from None
+    doc = load_toml(p, "gap-model")  # keys, types and ranges (uavsim.schema.gap)
     table = doc.get("model", doc)
-    if not isinstance(table, dict):
-        raise UserError(f"{where}: [model] must be a table")
     keys = ("K", "T_prop", "T1", "T2", "tau", "noise_std")
-    extra = [k for k in table if k not in keys]
-    if extra:
-        raise UserError(f"{where}: unknown model key {extra[0]!r} (expected {', '.join(keys)})")
     model = ModelSpec(**{k: table.get(k) for k in keys if k in table})
     if model.noise_std is None:
         model.noise_std = 0.0

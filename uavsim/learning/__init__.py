@@ -12,6 +12,8 @@ lumped time parameters and the rule gains for K = 1, the cycle amplitude gives K
 Modules: ``model`` (network), ``loss`` (J-weighted softmax cross-entropy),
 ``train`` (recipes, checkpoints, resume, early stopping), ``evaluate``
 (held-out and off-grid metrics, closed-loop ISE criterion), ``export``
-(TorchScript artefact and a numpy+torch inference path), ``identify``
-(sessions -> class, parameters, gains).
+(weights.npz, ONNX and TorchScript artefacts; ``Predictor`` runs weights.npz with
+numpy alone), ``identify`` (sessions -> class, parameters, gains; no torch),
+``figures`` (identification and training PNGs). Only ``model``, ``loss`` and
+``train`` need torch (``pip install 'uavsim[train]'``).
 """

@@ -60,6 +60,8 @@ __all__ = [
 TRAIN_FORMAT = "uavsim-train/1"
 CHECKPOINT = "checkpoint.pt"
 REPORT = "report.json"
+#: training curves (loss, validation mean J per epoch) beside the exported network
+CURVES = "training.png"
 
 
 @dataclass
@@ -161,10 +163,9 @@ def load_train_recipe(path: str | os.PathLike, overrides: dict[str, Any] | None 
     p = Path(path)
     if not p.is_file():
         raise UserError(f"training recipe {p} not found")
-    try:
-        doc = tomllib.loads(p.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{p}: not valid TOML ({exc})") from None
+    from uavsim.schema import load_toml
+
+    doc = load_toml(p, "training")  # keys, types and ranges (uavsim.schema.training)
     flat: dict[str, Any] = {}
     for key, value in doc.items():
         if isinstance(value, dict):
@@ -547,13 +548,18 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     meta = _class_meta(data, recipe, cfg)
     meta.update({"best_epoch": best["epoch"], "val": {k[4:]: v for k, v in best.items() if k.startswith("val_")}})
     export_model(net, meta, out)
+    from uavsim.learning.figures import training_curves_png
+
+    training_curves_png(history, out / CURVES, title=f"{recipe.name}: {cfg.n_classes} {meta['loop']} classes, "
+                        f"{int(tr_idx.size)} training inputs", best_epoch=best["epoch"])
 
     report: dict[str, Any] = {
         "name": recipe.name, "loop": meta["loop"], "n_classes": cfg.n_classes, "n_train": int(tr_idx.size),
         "n_val": int(va_idx.size), "input": [C, L], "epochs_run": len(history), "stopped": stopped,
         "best_epoch": best["epoch"], "train_time_s": train_s, "device": device.type,
         "threads": torch.get_num_threads(), "seed": seed, "val": meta["val"], "out": str(out),
-        "dataset": recipe.dataset,
+        "dataset": recipe.dataset, "curves": str(out / CURVES),
+        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1") if k in h} for h in history],
     }
     if recipe.test_dataset and not Path(recipe.test_dataset).is_file():
         # a missing held-out set must not throw away a finished training run

@@ -267,7 +267,10 @@ _TOP = ("format", "description", "seed", "loops", "estimator", "camera", "imu", 
 
 
 def parse_scenario(doc: dict, name: str = "scenario", where: str = "scenario") -> Scenario:
-    """Build a ``Scenario`` from a parsed TOML document (strict)."""
+    """Build a ``Scenario`` from a parsed TOML document (strict: ``uavsim.schema.scenario`` first)."""
+    from uavsim.schema import validate
+
+    validate("scenario", doc, where)
     bad = sorted(set(doc) - set(_TOP))
     if bad:
         raise _err(where, f"unknown key(s) {bad} (known: {', '.join(_TOP)})")

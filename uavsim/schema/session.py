@@ -1,0 +1,86 @@
+"""Schema of a flight session's ``session.toml`` (``uavsim-session/1``).
+
+Built from the vocabulary tables of ``uavsim.formats.session`` (loops, run kinds
+and their parameters, effects and their ranges), so that the schema and the
+reader cannot drift apart. The reader keeps its own checks in front of this one
+for their hints (the line of a CSV row, "not a key of a mrft run"); this schema
+is what it enforces as a whole, and what ``uavsim schema session`` prints.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import Field, model_validator
+
+from uavsim.formats import session as fmt
+from uavsim.schema._base import Beta, Finite, NonNegative, Positive, Table, number_type, tagged
+
+# ranges of the run parameters (validate_run_params); a parameter not named here is any finite number
+_RUN_TYPES: dict[str, Any] = {
+    "beta": Beta,
+    "h": Annotated[Positive, Field(description="relay amplitude, command units")],
+    "tau_obs": Annotated[NonNegative, Field(description="NP-MRFT observation time, s")],
+    "a_n": Annotated[NonNegative, Field(description="NP-MRFT noise amplitude, output units")],
+    "bias": Annotated[Finite, Field(description="relay bias, command units")],
+    "derivative_filter_hz": Annotated[Positive, Field(description="derivative filter cut-off, Hz")],
+    "step_time": Annotated[NonNegative, Field(description="time of the reference step, s")],
+}
+
+
+def _run(kind: str) -> type[Table]:
+    required, optional = fmt.RUN_KEYS[kind]
+    fields: dict[str, Any] = {"file": (str, Field(min_length=1, description="CSV t,r,y,u, relative to the folder"))}
+    for k in required:
+        fields[k] = (_RUN_TYPES.get(k, Finite), ...)
+    for k in optional:
+        fields[k] = (_RUN_TYPES.get(k, Finite) | None, None)
+    return tagged(f"Run_{kind.replace('-', '_')}", "kind", kind, fields, doc=f"a {kind} run")
+
+
+def _effect(name: str) -> type[Table]:
+    fields = {p: (number_type(fmt._EFFECT_RANGES.get(p, "any")), ...) for p in fmt.EFFECT_PARAMS[name]}
+    return tagged(f"Effect_{name}", "name", name, fields, doc=f"a {name} effect")
+
+
+Run = Annotated[Union[tuple(_run(k) for k in fmt.RUN_KINDS)], Field(discriminator="kind")]  # noqa: UP007
+Effect = Annotated[Union[tuple(_effect(n) for n in fmt.EFFECT_PARAMS)], Field(discriminator="name")]  # noqa: UP007
+
+
+class Model(Table):
+    """The loop's lumped model."""
+
+    K: Finite = Field(description="loop gain, output units per command unit (per s for type-1 loops); not 0")
+    T_prop: Positive = Field(description="propulsion time constant, s")
+    T1: Positive = Field(description="body time constant, s")
+    T2: Positive | None = Field(default=None, description="second body time constant, s (lateral loops only)")
+    tau: NonNegative = Field(description="total loop delay, s")
+    noise_std: NonNegative = Field(default=0.0, description="measurement noise std, output units")
+
+    @model_validator(mode="after")
+    def _gain(self):
+        if self.K == 0:
+            raise ValueError("K must be non-zero")
+        return self
+
+
+class SessionFile(Table):
+    """A flight session's session.toml: the loop, the controller rate, the runs (one CSV each),
+    and optionally the loop's model and the effects the gap workflow added."""
+
+    format: str = Field(description=f"format version, {fmt.FORMAT!r}")
+    loop: Literal[fmt.LOOPS]  # type: ignore[valid-type]
+    control_rate_hz: Positive = Field(description="rate of the controller's samples, Hz")
+    model: Model | None = None
+    runs: list[Run] = Field(min_length=1)
+    effects: list[Effect] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _t2(self):
+        if self.model is not None:
+            lateral = self.loop in fmt.LATERAL_LOOPS
+            if lateral and self.model.T2 is None:
+                raise ValueError(f"model: missing key 'T2' (required for the {self.loop} loop)")
+            if not lateral and self.model.T2 is not None:
+                raise ValueError(f"model: 'T2' is not a key of the {self.loop} loop model (lateral loops only)")
+        return self
