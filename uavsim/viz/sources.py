@@ -2,7 +2,7 @@
 
 Three sources, told apart by :func:`detect_source`:
 
-* **session** (a folder with ``session.toml``, format ``uavsim-session/1``):
+* **session** (a folder with ``session.toml``, format ``uavsim-session/2`` or 1):
   every run, r, y, u as logged. A session whose ``[model]`` is noise-free and
   has no effects (what ``uavsim sim relay --session`` writes) is simulated
   again with ``LoopBatch(record_state=True)`` at the physics steps ``uavsim``
@@ -130,10 +130,11 @@ def detect_source(path: str | Path) -> str:
 
 # -- sessions ---------------------------------------------------------------------------------------
 
-def _relay_of(spec: Any) -> dict[str, Any] | None:
+def _relay_of(spec: Any, reading: int) -> dict[str, Any] | None:
     if spec.kind not in ("np-mrft", "mrft"):
         return None
-    return {"beta": spec.beta, "h": spec.h, "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias": spec.bias}
+    return {"beta": spec.beta, "h": spec.h, "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias": spec.bias,
+            "reading": reading}
 
 
 def _resimulate_session_run(session: Any, rr: ReplayRun) -> ReplayRun:
@@ -166,8 +167,9 @@ def _resimulate_session_run(session: Any, rr: ReplayRun) -> ReplayRun:
             lb = LoopBatch([params], dt=dt, rate_hz=rr.rate_hz, y0=rr.y[:1], record_state=True)
         except UserError:
             continue
-        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"]) if rr.kind == "mrft" else
-                 NPMRFT(s["beta"], s["h"], s["tau_obs"], s["a_n"], rr.rate_hz, 1, bias=s["bias"]))
+        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"], reading=s["reading"]) if rr.kind == "mrft"
+                 else NPMRFT(s["beta"], s["h"], s["tau_obs"], s["a_n"], rr.rate_hz, 1, bias=s["bias"],
+                             reading=s["reading"]))
         res = lb.run(relay, rr.t.size / rr.rate_hz)
         if res.diverged[0]:
             continue
@@ -218,7 +220,7 @@ def session_runs(path: str | Path, run: str | None = None, *, resimulate: bool =
         stems.append(stem)
         d = r.data
         rr = ReplayRun(stem=stem, label=r.spec.file, kind=r.spec.kind, t=d.t, r=d.r, y=d.y, u=d.u,
-                       rate_hz=session.control_rate_hz, relay=_relay_of(r.spec), info={"file": r.spec.file})
+                       rate_hz=session.control_rate_hz, relay=_relay_of(r.spec, session.reading), info={"file": r.spec.file})
         out.append(_resimulate_session_run(session, rr) if resimulate else rr)
     return out, {"session": str(session.path), "loop": session.loop, "control_rate_hz": session.control_rate_hz}
 
@@ -459,6 +461,7 @@ def scenario_runs(path: str | Path, run: str | None = None) -> tuple[list[Replay
         if kind in ("np-mrft", "mrft"):
             relay = {k: ctrl.get(k) for k in ("beta", "h", "tau_obs", "a_n", "bias")}
             relay["bias"] = relay["bias"] or 0.0
+            relay["reading"] = int(ctrl.get("reading", 1))  # runs recorded before reading 2 ran reading 1
         signals = {k: arr[k] for k in ("y_cam", "y_kf", "target", "innovation", "force", "schedule") if k in arr}
         desc = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in ctrl.items())
         notes = [("INFO", f"{name}: {meta.get('scenario')} scenario episode, {ep.get('loop')} loop, {desc}")]
