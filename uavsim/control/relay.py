@@ -189,6 +189,9 @@ class NPMRFT:
         # Ts, with a tolerance so that tau_obs = 6.5 * Ts is not lost to rounding.
         self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
         self.rho = guard_fraction(self.beta)
+        self._corr = self.a_n * (1.0 - self.beta)
+        # the centre is zero without a relay bias: its running sums are then not needed
+        self._biased = bool(np.any(self.bias != 0))
         self.reset()
 
     def retune(self, tau_obs=None, a_n=None) -> None:
@@ -203,6 +206,7 @@ class NPMRFT:
             self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
         if a_n is not None:
             self.a_n = _as_batch("a_n", a_n, self.n)
+            self._corr = self.a_n * (1.0 - self.beta)
 
     def reset(self) -> None:
         """Forget everything: the next call is the first sample."""
@@ -265,49 +269,59 @@ class NPMRFT:
             self.switched[:] = False
             self.confirmed[:] = False
         else:
-            up = self.sign > 0
-            if self.reading == 1:
-                track = np.ones(self.n, dtype=bool)
-            else:
-                # the half-wave of this relay state starts at the first sample on its side of the
-                # cycle's centre, or, by the deadlock guard, W samples after the switch
-                side = self.sign * (e - self.centre) >= 0
-                wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
-                start = ~self.armed & (side | (k - self.k_sw >= wait))
-                self.guard = start & ~side
-                self.e_ext = np.where(start, e, self.e_ext)
-                self.k_ext = np.where(start, k, self.k_ext)
-                self.armed = self.armed | start
-                track = self.armed & ~start
+            sgn = self.sign
+            up = sgn > 0
+            e_ext, k_ext = self.e_ext, self.k_ext
+            start = None
+            self.guard[:] = False
+            if self.reading == 2:
+                waiting = ~self.armed
+                if waiting.any():
+                    # the half-wave of this relay state starts at the first sample on its side of the
+                    # cycle's centre, or, by the deadlock guard, W samples after the switch
+                    side = sgn * (e - self.centre) >= 0 if self._biased else sgn * e >= 0
+                    wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
+                    start = waiting & (side | (k - self.k_sw >= wait))
+                    if start.any():
+                        self.guard = start & ~side
+                        e_ext[start] = e[start]
+                        k_ext[start] = k
+                        self.armed |= start
             # running max while u = +h, running min while u = -h (ties keep the first)
-            better = track & np.where(up, e > self.e_ext, e < self.e_ext)
-            self.e_ext = np.where(better, e, self.e_ext)
-            self.k_ext = np.where(better, k, self.k_ext)
-            conf = self.armed & self._confirmed()
-            corr = self.a_n * (1.0 - self.beta)
-            # b2 = beta e_max + a_n (1 - beta): switch down when e <= -b2
-            down = up & conf & (e <= -(self.beta * self.e_ext + corr))
+            better = np.where(up, e > e_ext, e < e_ext)
+            better &= self.armed
+            if start is not None:
+                better &= ~start
+            if better.any():
+                e_ext[better] = e[better]
+                k_ext[better] = k
+            conf = self.armed & ((k - k_ext) >= self.n_obs)
+            corr = self._corr
+            t = self.beta * e_ext
+            # b2 = beta e_max + a_n (1 - beta): switch down when e <= -b2;
             # b1 = -beta e_min + a_n (1 - beta): switch up when e >= b1
-            upsw = ~up & conf & (e >= -self.beta * self.e_ext + corr)
-            sw = down | upsw
-            if np.any(sw):
-                self.sign = np.where(sw, -self.sign, self.sign)
-                self.half[1] = np.where(sw, self.half[0], self.half[1])
-                self.half[0] = np.where(sw, k - self.k_sw, self.half[0])
-                self.k_sw3 = np.where(sw, self.k_sw2, self.k_sw3)
-                self.k_sw2 = np.where(sw, self.k_sw, self.k_sw2)
-                self.k_sw = np.where(sw, k, self.k_sw)
-                self.sum_sw3 = np.where(sw, self.sum_sw2, self.sum_sw3)
-                self.sum_sw2 = np.where(sw, self.sum_sw, self.sum_sw2)
-                self.sum_sw = np.where(sw, self.sum_e, self.sum_sw)
-                self.n_sw = self.n_sw + sw
-                self.e_ext = np.where(sw, e, self.e_ext)
-                self.k_ext = np.where(sw, k, self.k_ext)
-                # reading 2: the new half-wave has started if e is already on its side of the centre
-                self.armed = np.where(sw, (self.reading == 1) | (self.sign * (e - self.centre) >= 0), self.armed)
+            sw = conf & np.where(up, e <= -(t + corr), e >= -t + corr)
+            if sw.any():
+                self.sign = np.where(sw, -sgn, sgn)
+                self.half[1, sw] = self.half[0, sw]
+                self.half[0, sw] = k - self.k_sw[sw]
+                self.k_sw3[sw] = self.k_sw2[sw]
+                self.k_sw2[sw] = self.k_sw[sw]
+                self.k_sw[sw] = k
+                self.sum_sw3[sw] = self.sum_sw2[sw]
+                self.sum_sw2[sw] = self.sum_sw[sw]
+                self.sum_sw[sw] = self.sum_e[sw]
+                self.n_sw += sw
+                e_ext[sw] = e[sw]
+                k_ext[sw] = k
+                if self.reading == 2:
+                    # the new half-wave has started if e is already on its side of the centre
+                    c = self.centre if self._biased else 0.0
+                    self.armed[sw] = (self.sign * (e - c) >= 0)[sw]
             self.switched = sw
             self.confirmed = conf & ~sw
-        self.sum_e = self.sum_e + e
+        if self._biased:
+            self.sum_e += e
         self.k += 1
         return self.sign * self.h + self.bias
 
