@@ -6,14 +6,16 @@ depend on how busy the machine is:
 - ``raw_steps_per_s``: ``Batch.step`` on ``nsim`` simulations, no controller;
 - ``closed_loop_steps_per_s``: ``LoopBatch`` with a numpy MRFT at 200 Hz;
 - ``python_loop_steps_per_s``: a plain Python loop over ``MjData`` with the
-  same relay, one simulation after another (measured on fewer simulations and
-  reported per simulated step);
+  same relay, simulations split over as many threads as the batch uses
+  (``mj_step`` releases the GIL), each thread one simulation after another
+  (measured on fewer simulations and reported per simulated step);
 - ``ratio_closed_loop_to_raw`` and ``ratio_closed_loop_to_python``.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import time
 
 import mujoco
@@ -58,27 +60,34 @@ def bench_sim(nsim: int = 1024, duration_s: float = 2.0, dt: float = 0.001, rate
         lb2.run(MRFT(-0.73, 1.0, rate_hz, nsim), duration_s)
         closeds.append(steps / (time.perf_counter() - t0))
     raw, closed = float(np.median(raws)), float(np.median(closeds))
-    # a plain Python loop over MjData with the same relay and mapping
-    m = lb.model
-    py_steps = 0
-    t0 = time.perf_counter()
+    # a plain Python loop over MjData with the same relay and mapping, on the batch's thread count
+    nthread = int(lb.batch.nthread)
     mix = lb.vehicle.mixer()[:, 0] / lb.vehicle.thrust_per_us
-    for i in range(python_sims):
-        model = lb.batch.get_model(i)
-        d = mujoco.MjData(model)
-        d.qpos[2] = -1e-3
-        relay = MRFT(-0.73, 1.0, rate_hz, 1)
-        scale = lb.map.cmd_scale[i]
-        for _ in range(T):
-            u = relay(np.array([-d.qpos[2]]))[0]
-            d.ctrl[:] = scale * u * mix
-            for _ in range(lb.rate_steps):
-                mujoco.mj_step(model, d)
-        py_steps += T * lb.rate_steps
+
+    def python_loop(sims: list[int]) -> int:
+        done = 0
+        for i in sims:
+            model = lb.batch.get_model(i)
+            d = mujoco.MjData(model)
+            d.qpos[2] = -1e-3
+            relay = MRFT(-0.73, 1.0, rate_hz, 1)
+            scale = lb.map.cmd_scale[i]
+            for _ in range(T):
+                u = relay(np.array([-d.qpos[2]]))[0]
+                d.ctrl[:] = scale * u * mix
+                for _ in range(lb.rate_steps):
+                    mujoco.mj_step(model, d)
+            done += T * lb.rate_steps
+        return done
+
+    python_sims = max(python_sims, nthread)
+    shares = [list(range(k, python_sims, nthread)) for k in range(nthread)]
+    t0 = time.perf_counter()
+    with cf.ThreadPoolExecutor(max_workers=nthread) as ex:
+        py_steps = sum(ex.map(python_loop, shares))
     py = py_steps / (time.perf_counter() - t0)
-    del m
     return {
-        "nsim": nsim, "nthread": lb.batch.nthread, "dt": dt, "rate_hz": rate_hz, "rounds": rounds,
+        "nsim": nsim, "nthread": lb.batch.nthread, "python_loop_threads": nthread, "dt": dt, "rate_hz": rate_hz, "rounds": rounds,
         "raw_steps_per_s": raw, "closed_loop_steps_per_s": closed, "python_loop_steps_per_s": py,
         "ratio_closed_loop_to_raw": closed / raw, "ratio_closed_loop_to_python": closed / py,
     }
