@@ -36,6 +36,10 @@ Two sources, both what a user has (never the true process):
      ``a_n (1 - beta)`` of both switching levels (eq. 22-23) then matches what
      the noise actually does to the tracked extremum and at the level
      crossing, whatever its distribution, instead of assuming a sinusoid.
+     A run that switched falsely (a half-period under a quarter of the
+     period: beta held ``tau_obs`` below the noise period on a fast cycle)
+     gets at least ``A_N_FALSE_FACTOR x`` its ``a_n`` and ``A_N_FALSE_FLOOR x``
+     the noise amplitude: the correction is then the protection left.
 
 Why two steps. The correction ``a_n (1 - beta)`` is exact for the paper's
 noise model only (a sinusoid of amplitude ``a_n``: the confirmed peak
@@ -81,6 +85,9 @@ LEVEL_SIDE_SLACK = 1.1
 A_N_GAIN = 1.5
 #: refined a_n <= A_N_MAX x the noise amplitude
 A_N_MAX = 1.0
+#: a run that switched falsely: a_n at least A_N_FALSE_FACTOR x its own and A_N_FALSE_FLOOR x the noise amplitude
+A_N_FALSE_FACTOR = 1.6
+A_N_FALSE_FLOOR = 0.5
 #: half-cycles a refinement needs, and of them with the extremum beyond its switching level
 MIN_HALF_CYCLES = 4
 MIN_VALID_HALF_CYCLES = 2
@@ -493,8 +500,9 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
     dict of (m,) arrays: ``tau_obs``, ``a_n`` (refined; the run's own where ``refined``
     is False), ``period``, ``amplitude``, ``level_time``, ``switch_error``,
     ``noise_amplitude`` (the ``A_N_QUANTILE`` quantile of the residual above the cycle's
-    harmonics), ``cutoff_hz``, ``half_cycles`` (int), ``refined`` (bool), and ``smooth``
-    (m, T), the errors' smooth parts.
+    harmonics), ``cutoff_hz``, ``half_cycles`` (int), ``false_switches`` (int: half-periods
+    shorter than a quarter of the period), ``refined`` (bool), and ``smooth`` (m, T), the
+    errors' smooth parts.
     """
     t = np.asarray(t, dtype=np.float64)
     E = np.atleast_2d(np.asarray(e, dtype=np.float64))
@@ -512,6 +520,7 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
     out = {"tau_obs": tau0.copy(), "a_n": an0.copy(), "period": nan.copy(), "amplitude": nan.copy(),
            "level_time": nan.copy(), "switch_error": nan.copy(), "noise_amplitude": nan.copy(),
            "cutoff_hz": nan.copy(), "half_cycles": np.zeros(m, dtype=np.int64), "refined": np.zeros(m, dtype=bool),
+           "false_switches": np.zeros(m, dtype=np.int64),
            "smooth": np.full((m, T), np.nan)}
     finite = np.all(np.isfinite(E), axis=1)
     for i in np.flatnonzero(finite):
@@ -547,7 +556,15 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         # a noise-free sampled relay switches half a sample's change past the level on average
         err = float(np.median((hc["early"] + hc["late_half_sample"])[valid]))
         out["switch_error"][i] = err
-        out["a_n"][i] = float(np.clip(an0[i] + A_N_GAIN * err / (1.0 - beta[i]), 0.0, A_N_MAX * q[i]))
+        a_n_new = an0[i] + A_N_GAIN * err / (1.0 - beta[i])
+        # false switches (half-periods under a quarter of the period: beta held tau_obs below the
+        # noise period) make the half-cycles' errors meaningless: the correction is the protection left
+        sw = switch_indices(U[i])
+        sw = sw[sw >= i0]
+        out["false_switches"][i] = int(np.sum(np.diff(t[sw]) < 0.25 * out["period"][i]))
+        if out["false_switches"][i]:
+            a_n_new = max(a_n_new, A_N_FALSE_FACTOR * an0[i], A_N_FALSE_FLOOR * q[i])
+        out["a_n"][i] = float(np.clip(a_n_new, 0.0, A_N_MAX * q[i]))
         # the observation must hold back neither switch: the median over the half-cycles, but
         # no more than LEVEL_SIDE_SLACK x the shorter side's (a relay bias makes the sides differ)
         lv = hc["level_samples"]
