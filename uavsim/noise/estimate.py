@@ -58,6 +58,7 @@ kind (see ``docs/results/noise.md``); the relay run measures it.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -135,9 +136,7 @@ class NoiseEstimate:
     notes: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        return {"T_n": self.T_n, "a_n": self.a_n, "a_n_mean": self.a_n_mean, "sigma": self.sigma,
-                "tau_obs": self.tau_obs, "cutoff_hz": self.cutoff_hz, "rate_hz": self.rate_hz,
-                "n_peaks": self.n_peaks, "notes": list(self.notes)}
+        return dataclasses.asdict(self)
 
 
 @functools.lru_cache(maxsize=64)
@@ -407,17 +406,15 @@ class RelayRefinement:
     a_n: float
     period: float
     amplitude: float
-    level_time: float
-    switch_error: float
     noise: NoiseEstimate
-    half_cycles: int
-    refined: bool
+    level_time: float = float("nan")
+    switch_error: float = float("nan")
+    half_cycles: int = 0
+    refined: bool = False
     notes: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        return {"tau_obs": self.tau_obs, "a_n": self.a_n, "period": self.period, "amplitude": self.amplitude,
-                "level_time": self.level_time, "switch_error": self.switch_error, "half_cycles": self.half_cycles,
-                "refined": self.refined, "noise": self.noise.as_dict(), "notes": list(self.notes)}
+        return dataclasses.asdict(self)
 
 
 def _settle_start(t: np.ndarray, settle: float | None) -> int:
@@ -613,8 +610,8 @@ def refine(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float, tau_obs:
     period = float(g["period"])
     if not math.isfinite(period):
         est = NoiseEstimate(float("nan"), 0.0, 0.0, 0.0, tau_obs, float("nan"), float(rate_hz), 0, [])
-        return RelayRefinement(tau_obs, a_n, period, float("nan"), float("nan"), float("nan"), est, 0, False,
-                               ["no steady relay cycle in the run: settings kept"])
+        return RelayRefinement(tau_obs, a_n, period, float("nan"), est,
+                               notes=["no steady relay cycle in the run: settings kept"])
     i0 = _settle_start(t, settle)
     residual = e[i0:] - g["smooth"][i0:]
     noise = estimate_noise(residual, rate_hz, cutoff_hz=float(g["cutoff_hz"]))
@@ -629,6 +626,7 @@ def refine(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float, tau_obs:
     T_n = hover.T_n if hover is not None and math.isfinite(hover.T_n) else noise.T_n
     if g["refined"] and math.isfinite(T_n) and g["tau_obs"] < T_n:
         notes.append(f"tau_obs {g['tau_obs']:.4g} s < T_n {T_n:.4g} s: beta {beta} does not allow more on this cycle")
-    return RelayRefinement(float(g["tau_obs"]), float(g["a_n"]), period, float(g["amplitude"]),
-                           float(g["level_time"]), float(g["switch_error"]), noise, m, bool(g["refined"]), notes)
+    return RelayRefinement(float(g["tau_obs"]), float(g["a_n"]), period, float(g["amplitude"]), noise,
+                           level_time=float(g["level_time"]), switch_error=float(g["switch_error"]), half_cycles=m,
+                           refined=bool(g["refined"]), notes=notes)
 
