@@ -18,7 +18,8 @@ median half peak-to-peak of the error's smooth part that ``refine``
 measures), relative errors against the noise-free MRFT run of the same
 process, false switches per reference period, whether the cycle is
 sustained, and whether the relay deadlocked (held one output for more than
-two reference periods in the steady state). Rows aggregate over both loops
+two reference periods in the steady state of an episode that did not
+diverge; a diverged episode counts as a lost cycle). Rows aggregate over both loops
 per (controller, noise, level).
 
     uavsim bench noise --json --processes 20 --seed 0 > noise.json
@@ -268,7 +269,7 @@ def run_loop(loop: str, cfg: BenchConfig, rng: np.random.Generator) -> list[dict
                 "loop": loop, "controller": name, "noise": kind, "level": lv, "process": int(p),
                 "period_err": per / T0[p] - 1.0, "amp_err": amp / a0[p] - 1.0,
                 "false_switch_rate": false_switch_rate(res.t, res.u[j], T0[p]),
-                "sustained": ok, "deadlock": bool(hold > 2.0), "longest_hold_T0": hold, "T0": T0[p], "a0": a0[p],
+                "sustained": ok, "deadlock": bool(hold > 2.0 and not res.diverged[j]), "longest_hold_T0": hold, "T0": T0[p], "a0": a0[p],
                 "tau_obs": float(tau_obs[j]) if name == "np-mrft" else None,
                 "a_n": float(a_n[j]) if name == "np-mrft" else None,
                 "tau_obs_first": float(first[0][j]) if name == "np-mrft" else None,
