@@ -564,11 +564,12 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         out["a_n"][i] = float(np.clip(a_n_new, 0.0, A_N_MAX * q[i]))
         # the observation must hold back neither switch: the median over the half-cycles, but
         # no more than LEVEL_SIDE_SLACK x the shorter side's (a relay bias makes the sides differ)
+        # (degenerate half-cycles, whose switch is due at the extremum, cannot be spared: they do not count)
         lv = hc["level_samples"]
-        sides = [np.median(lv[(hc["down"] == d) & (lv >= 0)]) for d in (True, False)
-                 if np.any((hc["down"] == d) & (lv >= 0))]
+        use = valid & (lv >= 0)
+        sides = [np.median(lv[use & (hc["down"] == d)]) for d in (True, False) if np.any(use & (hc["down"] == d))]
         if sides:
-            level = min(float(np.median(lv[lv >= 0])), LEVEL_SIDE_SLACK * float(min(sides)))
+            level = min(float(np.median(lv[use])), LEVEL_SIDE_SLACK * float(min(sides)))
             out["level_time"][i] = level / rate_hz
             out["tau_obs"][i] = _round_down(TAU_LEVEL_FRACTION * out["level_time"][i], rate_hz)
         out["refined"][i] = True
