@@ -224,6 +224,7 @@ class NPMRFT:
         self.sum_sw = np.zeros(n)       # sum_e at the last switch and at the two before
         self.sum_sw2 = np.zeros(n)
         self.sum_sw3 = np.zeros(n)
+        self._centre = np.zeros(n)
         self.armed = np.ones(n, dtype=bool)
         self.guard = np.zeros(n, dtype=bool)
         self.switched = np.zeros(n, dtype=bool)
@@ -239,9 +240,12 @@ class NPMRFT:
         its half-waves start at the crossings of the mean error over the last
         cycle (the last two half-periods; zero until three switches).
         """
-        span = np.maximum(self.k_sw - self.k_sw3, 1)
-        mean = (self.sum_sw - self.sum_sw3) / span
-        return np.where((self.bias != 0) & (self.n_sw >= 3), mean, 0.0)
+        return self._centre
+
+    def _update_centre(self, rows: np.ndarray) -> None:
+        span = np.maximum(self.k_sw[rows] - self.k_sw3[rows], 1)
+        mean = (self.sum_sw[rows] - self.sum_sw3[rows]) / span
+        self._centre[rows] = np.where((self.bias[rows] != 0) & (self.n_sw[rows] >= 3), mean, 0.0)
 
     def _confirmed(self) -> np.ndarray:
         return (self.k - self.k_ext) >= self.n_obs
@@ -264,6 +268,7 @@ class NPMRFT:
             self.sum_sw[:] = 0.0
             self.sum_sw2[:] = 0.0
             self.sum_sw3[:] = 0.0
+            self._centre[:] = 0.0
             self.armed[:] = True
             self.guard[:] = False
             self.switched[:] = False
@@ -279,7 +284,7 @@ class NPMRFT:
                 if waiting.any():
                     # the half-wave of this relay state starts at the first sample on its side of the
                     # cycle's centre, or, by the deadlock guard, W samples after the switch
-                    side = sgn * (e - self.centre) >= 0 if self._biased else sgn * e >= 0
+                    side = sgn * (e - self._centre) >= 0 if self._biased else sgn * e >= 0
                     wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
                     start = waiting & (side | (k - self.k_sw >= wait))
                     if start.any():
@@ -316,8 +321,11 @@ class NPMRFT:
                 k_ext[sw] = k
                 if self.reading == 2:
                     # the new half-wave has started if e is already on its side of the centre
-                    c = self.centre if self._biased else 0.0
-                    self.armed[sw] = (self.sign * (e - c) >= 0)[sw]
+                    if self._biased:
+                        self._update_centre(sw)
+                        self.armed[sw] = (self.sign * (e - self._centre) >= 0)[sw]
+                    else:
+                        self.armed[sw] = (self.sign * e >= 0)[sw]
             self.switched = sw
             self.confirmed = conf & ~sw
         if self._biased:
