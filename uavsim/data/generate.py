@@ -72,7 +72,7 @@ from uavsim.errors import UserError
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects import make_effect
 from uavsim.noise.estimate import (
-    estimate_noise,
+    estimate_noise_batch,
     recommend,
     refine_batch,
     synthetic_hover,
@@ -336,8 +336,7 @@ def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NP
     eff = _noise_effect(r.noise.kinds, plan.noise_kind[ids], plan.noise_level[ids] * plan.a0[ids], steps)
     hover = synthetic_hover(m, HOVER_S, rate, plan.a0[ids], eff, rng)
     tau, a_n, q = np.empty(m), np.empty(m), np.empty(m)
-    for i in range(m):
-        est = estimate_noise(hover[i], rate)
+    for i, est in enumerate(estimate_noise_batch(hover, rate)):
         tau[i], a_n[i] = recommend(est, plan.beta)
         q[i] = est.a_n
     relay = NPMRFT(plan.beta, r.test.h, tau, a_n, rate, m, bias=plan.bias[ids])

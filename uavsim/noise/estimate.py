@@ -269,7 +269,24 @@ def estimate_noise(y: np.ndarray, rate_hz: float, cutoff_hz: float | None = None
     if y.size < max(32, int(4 * rate_hz / cutoff_hz)):
         raise UserError(f"segment too short for noise estimation: {y.size} samples "
                         f"(need {max(32, int(4 * rate_hz / cutoff_hz))} at cut-off {cutoff_hz:.3g} Hz)")
-    x = highpass(y, rate_hz, cutoff_hz)
+    return _summarize(y, highpass(y, rate_hz, cutoff_hz), rate_hz, float(cutoff_hz), quantile, notes)
+
+
+def estimate_noise_batch(y: np.ndarray, rate_hz: float, quantile: float = A_N_QUANTILE) -> list[NoiseEstimate]:
+    """:func:`estimate_noise` of ``m`` hover segments of one length, (m, T), high-passed together."""
+    y = np.asarray(y, dtype=np.float64)
+    if y.ndim != 2 or y.shape[1] < max(32, int(4 * rate_hz / HOVER_CUTOFF_HZ)) or not np.all(np.isfinite(y)):
+        raise UserError(f"noise estimation needs finite hover segments (m, T) of at least "
+                        f"{max(32, int(4 * rate_hz / HOVER_CUTOFF_HZ))} samples, got shape {y.shape}")
+    x = y - np.mean(y, axis=1, keepdims=True)
+    sos = _butter_sos(4, HOVER_CUTOFF_HZ, "highpass", float(rate_hz))
+    x = _signal.sosfiltfilt(sos, x, axis=1, padlen=min(x.shape[1] - 1, int(3 * rate_hz / HOVER_CUTOFF_HZ)))
+    return [_summarize(y[i], x[i], rate_hz, HOVER_CUTOFF_HZ, quantile, []) for i in range(y.shape[0])]
+
+
+def _summarize(y: np.ndarray, x: np.ndarray, rate_hz: float, cutoff_hz: float, quantile: float,
+               notes: list[str]) -> NoiseEstimate:
+    """The estimate from a segment ``y`` and its high-passed ``x``."""
     sigma = float(np.std(x))
     idx, val = excursion_peaks(x)
     scale = float(np.max(np.abs(y - np.mean(y)))) or 1.0
