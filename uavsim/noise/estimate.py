@@ -424,11 +424,11 @@ class RelayRefinement:
     period: float
     amplitude: float
     noise: NoiseEstimate
+    notes: list[str] = field(default_factory=list)
     level_time: float = float("nan")
     switch_error: float = float("nan")
     half_cycles: int = 0
     refined: bool = False
-    notes: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return dataclasses.asdict(self)
