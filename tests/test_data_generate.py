@@ -1,6 +1,7 @@
 """Training-set generation end to end: layout, determinism, resume, Dask, zero-noise sanity."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -187,8 +188,16 @@ def test_plan_is_deterministic_and_chunks_cover():
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
     ids = np.sort(np.concatenate(a.chunks))
     np.testing.assert_array_equal(ids, np.arange(a.n))
-    # tau_obs at least one sample and within beta's limit unless that is below one sample
-    assert np.all(a.tau_obs >= 1 / 200.0 - 1e-12) and np.all(a.tau_obs <= 0.03 + 1e-12)
+    # recommended settings: each episode finds its own (NaN in the plan); refinement stages first
+    assert r.test.settings == "recommended" and np.all(np.isnan(a.tau_obs)) and np.all(np.isnan(a.a_n))
+    main = np.ceil(r.episodes.cycles * 1.15 * np.array([a.grid.period[a.class_index[a.labels[c]]].max()
+                                                         for c in a.chunks]) * 200.0) / 200.0
+    np.testing.assert_allclose(a.durations, main + r.test.refinements * a.stage_s)
+    # fixed settings (a recipe that gives tau_obs): at least one sample, within beta's limit
+    text = re.sub(r"\nrefinements = .*", "", Path(SMALL).read_text()).replace('settings = "recommended"', "tau_obs = 0.03")
+    f = make_plan(parse_recipe(text, SMALL, "small"), g)
+    assert f.recipe.test.settings == "fixed" and np.all(f.stage_s == 0)
+    assert np.all(f.tau_obs >= 1 / 200.0 - 1e-12) and np.all(f.tau_obs <= 0.03 + 1e-12)
 
 
 def _clean_text(classes, rate_hz=4000.0, dt=0.00025, per_class=3):

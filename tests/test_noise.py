@@ -8,7 +8,7 @@ import pytest
 
 from uavsim.errors import UserError
 from uavsim.noise import analysis as A
-from uavsim.noise.estimate import estimate_noise, recommend, tau_obs_max
+from uavsim.noise.estimate import A_N_FIRST, estimate_noise, recommend, refine, tau_obs_max
 from uavsim.noise.models import (
     NOISE_KINDS,
     ColouredNoise,
@@ -132,21 +132,81 @@ def test_estimate_white_noise_sigma_and_no_noise():
     assert clean.a_n == 0.0 and math.isnan(clean.T_n) and clean.notes
 
 
-def test_recommend_respects_beta_min_and_sampling():
+def test_recommend_first_run_settings():
     est = estimate_noise(drift(4000) + 0.01 * np.sin(2 * np.pi * 40 * np.arange(4000) / RATE), RATE)
-    # beta = -0.73, T0 = 1 s: tau <= asin(0.27) / 2 pi = 0.0435 s -> 8 samples = 0.040 s
+    # the paper's cap (kept for reporting): beta = -0.73, T0 = 1 s: asin(0.27) / 2 pi = 0.0435 s -> 0.040 s
     assert tau_obs_max(-0.73, 1.0, RATE) == pytest.approx(0.040)
+    # a known cycle of 1 s allows 0.85 x acos(0.73) / 2 pi = 0.10 s: T_n (25 ms) is the tau_obs
     tau, a_n = recommend(est, -0.73, 1.0)
-    assert tau == pytest.approx(0.040) and tau >= est.T_n and a_n == est.a_n
-    assert -1 + math.sin(2 * math.pi * tau / 1.0) <= -0.73
-    # a short cycle cannot host tau_obs >= T_n: capped with a note
-    tau, _ = recommend(est, -0.73, 0.3)
-    assert tau == pytest.approx(0.010) and any("capped" in s for s in est.notes)
-    assert recommend(est, -0.73, None)[0] == pytest.approx(est.tau_obs)
+    assert tau == pytest.approx(0.025) and a_n == pytest.approx(A_N_FIRST * est.a_n) and a_n > 0.0095
+    # a 0.2 s cycle reaches its switching level 24 ms after the extremum: 0.85 x that -> 20 ms, noted
+    tau, _ = recommend(est, -0.73, 0.2)
+    assert tau == pytest.approx(0.020) and any("capped" in s for s in est.notes)
+    # no cycle yet: as for the fastest cycle of the paper's box (one sample at 200 Hz)
+    assert recommend(est, -0.73, None)[0] == pytest.approx(1 / RATE)
     with pytest.raises(UserError):
         recommend(est, -1.0, 1.0)
     with pytest.raises(UserError, match="too short"):
         estimate_noise(np.zeros(10), RATE)
+
+
+def _relay_run(tau_obs, a_n, noise_std, seconds=20.0, seed=0):
+    """One NP-MRFT run on an exact lumped altitude loop (T0 ~ 1.3 s) with white measurement noise."""
+    from uavsim.control.relay import NPMRFT
+    from uavsim.lumped.reference import LumpedDiscrete
+
+    rng = np.random.default_rng(seed)
+    sim = LumpedDiscrete.inner(2.0, 0.2, 1.0, 0.04, 1 / RATE, 1)
+    relay = NPMRFT(-0.73, 1.0, tau_obs, a_n, RATE, 1)
+    y = sim.reset()
+    T = int(seconds * RATE)
+    e, u = np.empty(T), np.empty(T)
+    for k in range(T):
+        e[k] = -(y[0] + noise_std * rng.standard_normal())
+        u[k] = relay(e[k:k + 1])[0]
+        y = sim.step(u[k:k + 1])
+    return np.arange(T) / RATE, e, u
+
+
+def test_refine_noise_free_keeps_the_cycle_and_sets_a_long_observation():
+    from uavsim.control.relay import tau_obs_limit
+
+    t, e, u = _relay_run(1 / RATE, 0.0, 0.0)
+    period, amp, _ = A.cycle_stats(t, -e, u)
+    hover = estimate_noise(drift(2000), RATE)  # a clean sensor
+    ref = refine(t, e, u, beta=-0.73, tau_obs=1 / RATE, a_n=0.0, rate_hz=RATE, hover=hover)
+    assert ref.refined and ref.a_n < 1e-3 * amp  # the clean hover bounds it
+    assert ref.period == pytest.approx(period, abs=2 / RATE) and ref.amplitude == pytest.approx(amp, rel=0.03)
+    # the observation the cycle allows: ~0.85 x the time from extremum to level (sinusoid: 0.12 T0)
+    assert 0.5 * float(tau_obs_limit(-0.73, period)) < ref.tau_obs < float(tau_obs_limit(-0.73, period))
+    assert abs(ref.switch_error) < 0.05 * amp
+
+
+def test_refine_corrects_a_n_towards_the_noise_free_period():
+    t, e, u = _relay_run(1 / RATE, 0.0, 0.0)
+    T0, a0, _ = A.cycle_stats(t, -e, u)
+    std = 0.05 * a0  # white noise of amplitude 2 std = 10% of a0
+    # a first run's settings (one sample, a_n = the noise amplitude) lengthen the period
+    tau, a_n = 1 / RATE, 0.1 * a0
+    t, e, u = _relay_run(tau, a_n, std, seed=1)
+    assert A.cycle_stats(t, -e, u).period / T0 - 1 > 0.05
+    errors = []
+    for k in range(2):
+        ref = refine(t, e, u, beta=-0.73, tau_obs=tau, a_n=a_n, rate_hz=RATE)
+        errors.append(ref.switch_error)
+        assert ref.refined
+        tau, a_n = ref.tau_obs, ref.a_n
+        t, e, u = _relay_run(tau, a_n, std, seed=2 + k)
+    assert errors[0] < 0  # the first run switched late: a_n came down
+    assert 0 < a_n < 0.07 * a0 and tau > 20 / RATE
+    assert abs(A.cycle_stats(t, -e, u).period / T0 - 1) < 0.05
+    assert A.false_switch_rate(t, u, T0) == 0.0
+
+
+def test_refine_refuses_a_run_without_cycle():
+    t = np.arange(400) / RATE
+    ref = refine(t, 0.01 * np.ones(400), np.ones(400), beta=-0.73, tau_obs=0.02, a_n=0.001, rate_hz=RATE)
+    assert not ref.refined and ref.tau_obs == 0.02 and ref.a_n == 0.001 and ref.notes
 
 
 # --- cycle metrics ------------------------------------------------------------
@@ -215,9 +275,11 @@ def test_noise_cli_json(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(cli_main, "_COMMAND_MODULES", ["uavsim.cli.noise_cmd"])
     assert cli_main.main(["noise", str(folder), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["run"] == "run.csv" and out["period"] > 0
+    assert out["run"] == "run.csv" and out["period"] > 0 and out["refined"]
     assert 0.001 < out["sigma"] < 0.004
-    assert out["tau_obs"] >= 1 / RATE and out["beta_min"] <= -0.73
+    # tau_obs as long as this cycle allows: below the time from an extremum to the switching level
+    assert 1 / RATE < out["tau_obs"] < out["level_time"] < 0.25 * out["period"]
+    assert 0 <= out["a_n"] <= 0.01 and out["amplitude"] > 0
     assert cli_main.main(["noise", str(folder)]) == 0
     assert "tau_obs" in capsys.readouterr().out
     assert cli_main.main(["noise", str(folder), "--run", "nope.csv"]) == 2

@@ -1,9 +1,11 @@
-"""Switch instants of the lead's NPMRFT / MRFT against hand computation (session.md semantics).
+"""Switch instants of NPMRFT / MRFT against hand computation (docs/formats/session.md semantics).
 
 Signals are sampled sinusoids ``sin(2 pi k / 40)`` (40 samples per cycle, true
 maximum at k = 10, minimum at k = 30) with hand-placed noise samples. The
 expected instants are worked out in the comments from the normative rules:
-running extremum since the last switch, confirmed once ``k - k_ext >= n_obs``,
+running extremum of the half-wave (reading 2: from the crossing of the cycle's
+centre, midway between the last tracked maximum and minimum, initially 0;
+reading 1: since the last switch), confirmed once ``k - k_ext >= n_obs``,
 switch down when ``e <= -(beta e_max + a_n (1 - beta))``, up when
 ``e >= -beta e_min + a_n (1 - beta)``.
 """
@@ -112,13 +114,94 @@ def test_first_sample_rule_and_bias():
 
 
 def test_mrft_confirms_one_sample_after_extremum_and_restarts_tracker():
-    # hand case of the restart rule: the tracker restarts at the switch sample (0.4, k=5),
+    # hand case of the version-1 restart rule: the tracker restarts at the switch sample (0.4, k=5),
     # so an uptick right after a switch down is a "confirmed minimum" of 0.3 for plain MRFT
     e = [0.1, 0.5, 1.0, 0.8, 0.6, 0.4, 0.3, 0.35, 0.2]
-    ks, _ = switches(MRFT(beta=-0.5, h=1.0, rate_hz=10.0, n=1), np.array(e))
+    ks, _ = switches(MRFT(beta=-0.5, h=1.0, rate_hz=10.0, n=1, reading=1), np.array(e))
     # k=2 max 1.0 (confirmed k=3); -b2 = 0.5: 0.8, 0.6 no; 0.4 -> switch at 5.
     # k=6 min 0.3 (confirmed k=7), b1 = 0.15: 0.35 >= 0.15 -> switch back at 7
     assert ks == [5, 7]
+
+
+def uptick_after_switch():
+    """The sine with a noise bump right after the switch down at k=16 (e there: 0.588)."""
+    e = sine()
+    e[17] = 0.55                       # a lower value: the running minimum since the switch ...
+    e[18] = e[19] = e[20] = 0.6        # ... stands for 3 samples
+    return e
+
+
+def test_reading1_confirms_a_minimum_on_the_wrong_side_of_zero():
+    # tracker restarted at (0.588, 16); min 0.55 at k=17 confirmed at k=20 (n_obs=3);
+    # b1 = 0.7 * 0.55 = 0.385 and e[20] = 0.6 >= 0.385 -> false switch up at 20
+    ks, _ = switches(NPMRFT(beta=-0.7, h=1.0, tau_obs=0.075, a_n=0.0, rate_hz=RATE, n=1, reading=1),
+                     uptick_after_switch())
+    assert ks[:2] == [16, 20]
+
+
+def test_reading2_tracks_the_half_wave_after_the_centre():
+    # no relay bias: the half-wave of the minimum starts at the zero crossing. After the switch
+    # down at 16 (0.588) k=17..20 (0.55, 0.6) are not its half-wave; k=21 (-0.156) starts it;
+    # min -1 at k=30, confirmed k=33, b1 = -0.7 -> 36, exactly as without the bump
+    r = NPMRFT(beta=-0.7, h=1.0, tau_obs=0.075, a_n=0.0, rate_hz=RATE, n=1)
+    assert r.reading == 2
+    armed = []
+    ks = []
+    for k, ek in enumerate(uptick_after_switch()):
+        r(np.array([ek]))
+        armed.append(bool(r.armed[0]))
+        if r.switched[0]:
+            ks.append(k)
+    assert ks == [16, 36]
+    assert armed[16:21] == [False] * 5 and armed[21]
+    assert r.centre[0] == 0.0
+
+
+def test_deadlock_guard_starts_tracking_after_a_fraction_of_the_last_half_period():
+    # after the switch down at 16 the error never comes back below zero: it rises from 0.6. H1 = 16 (start to first switch), H2 = 0; beta = -0.7:
+    # rho = 1/4 + asin(0.7)/pi = 0.4968, W = ceil(0.4968 * 16) = 8 -> tracking starts at k=24
+    # (the guard); the rising error keeps its minimum at 24, confirmed at 27 (n_obs=3),
+    # b1 = 0.7 e[24] < e[27] -> switch up at 27: the relay resumes cycling
+    e = sine(60)
+    e[17:] = 0.6 + 0.01 * np.arange(43)
+    r = NPMRFT(beta=-0.7, h=1.0, tau_obs=0.075, a_n=0.0, rate_hz=RATE, n=1)
+    ks, guards = [], []
+    for k, ek in enumerate(e):
+        r(np.array([ek]))
+        if r.switched[0]:
+            ks.append(k)
+        if r.guard[0]:
+            guards.append(k)
+    assert ks[:2] == [16, 27]
+    assert guards[0] == 24
+    # reading 1 switches back as soon as the switch sample (0.588, a minimum since the switch)
+    # is confirmed: k=19
+    ks1, _ = switches(NPMRFT(beta=-0.7, h=1.0, tau_obs=0.075, a_n=0.0, rate_hz=RATE, n=1, reading=1), e)
+    assert ks1[:2] == [16, 19]
+
+
+def test_guard_fraction_and_tau_obs_limit():
+    from uavsim.control.relay import guard_fraction, tau_obs_limit
+
+    assert float(guard_fraction(-0.73)) == pytest.approx(0.25 + math.asin(0.73) / math.pi)
+    assert float(guard_fraction(0.3)) == 0.25 and float(guard_fraction(-0.999)) < 0.75 + 1e-9
+    # sinusoid: the level -beta a0 is reached acos(-beta) / 2 pi of a period after the peak
+    assert float(tau_obs_limit(-0.73, 1.0)) == pytest.approx(math.acos(0.73) / (2 * math.pi))
+    # the paper's beta_min is the more conservative bound
+    assert float(beta_min(float(tau_obs_limit(-0.73, 1.0)), 1.0)) > -0.73
+
+
+def test_retune_changes_settings_from_the_next_sample():
+    r = NPMRFT(beta=-0.7, h=1.0, tau_obs=0.075, a_n=0.0, rate_hz=RATE, n=2)
+    r.retune(tau_obs=[0.025, 0.1], a_n=0.1)
+    assert r.n_obs.tolist() == [1, 4] and r.a_n.tolist() == [0.1, 0.1]
+    with pytest.raises(UserError, match="a_n"):
+        r.retune(a_n=-1.0)
+
+
+def test_unknown_reading_is_refused():
+    with pytest.raises(UserError, match="reading"):
+        NPMRFT(beta=-0.7, h=1.0, tau_obs=0.0, a_n=0.0, rate_hz=RATE, n=1, reading=3)
 
 
 def test_vectorized_rows_are_independent():

@@ -1,4 +1,4 @@
-"""Tests of the flight-session format (``uavsim-session/1``).
+"""Tests of the flight-session format (``uavsim-session/2``; version 1 is read too).
 
 Three groups: the exact round trip (``read_session(write_session(s))`` gives
 the same bits), one test per malformed case of the spec (each must be a
@@ -29,6 +29,7 @@ from uavsim.errors import UserError
 from uavsim.formats import (
     EFFECT_PARAMS,
     FORMAT,
+    FORMATS,
     LOOPS,
     EffectSpec,
     ModelSpec,
@@ -407,7 +408,8 @@ def test_validate_run_params_rejects(spec: RunSpec, word: str) -> None:
 
 
 def test_public_constants() -> None:
-    assert FORMAT == "uavsim-session/1"
+    assert FORMAT == "uavsim-session/2"
+    assert FORMATS == {"uavsim-session/1": 1, "uavsim-session/2": 2}
     assert LOOPS == ("altitude", "roll", "pitch", "lateral_x", "lateral_y")
     assert EFFECT_PARAMS["delay"] == ("delay",) and EFFECT_PARAMS["none"] == ()
     assert set(EFFECT_PARAMS) == {"none", "delay", "lag", "gain", "saturation", "dead_zone",
@@ -505,7 +507,7 @@ MALFORMED = {
     "toml_syntax": (csv_case('format = "uavsim-session/1"\nloop = \n', TOML), TOML, "TOML syntax"),
     "toml_not_utf8": (csv_case(b'format = "\xff"\n', TOML), TOML, "UTF-8"),
     # format
-    "format_wrong": (doc_case(_set(("format",), "uavsim-session/2")), TOML, "unsupported format"),
+    "format_wrong": (doc_case(_set(("format",), "uavsim-session/3")), TOML, "unsupported format"),
     "format_missing": (doc_case(_del(("format",))), TOML, "missing key 'format'"),
     "format_not_string": (doc_case(_set(("format",), 1)), TOML, "must be a string"),
     # unknown keys, with the closest valid one
@@ -649,7 +651,8 @@ def test_cli_check_json(tmp_path: Path, monkeypatch, capsys) -> None:
     assert rc == 0, err
     assert out.count("\n") == 1
     obj = json.loads(out)
-    assert set(obj) == {"path", "loop", "control_rate_hz", "model", "runs", "effects"}
+    assert set(obj) == {"path", "format", "loop", "control_rate_hz", "model", "runs", "effects"}
+    assert obj["format"] == FORMAT
     assert obj["path"] == str(folder)
     assert obj["loop"] == "altitude" and obj["control_rate_hz"] == RATE
     assert obj["model"]["K"] == 20.0 and obj["model"]["T2"] is None
@@ -818,3 +821,22 @@ def test_random_bytes_are_session_error(raw: bytes, where: str) -> None:
         (folder / where).write_bytes(raw)
         exc = _expect_session_error(folder)
         assert where in str(exc)
+
+
+def test_version_1_is_read_with_its_reading_and_written_back_as_version_1(tmp_path: Path) -> None:
+    (tmp_path / "session.toml").write_text(
+        'format = "uavsim-session/1"\nloop = "altitude"\ncontrol_rate_hz = 200.0\n\n'
+        '[[runs]]\nfile = "np.csv"\nkind = "np-mrft"\nbeta = -0.73\nh = 0.2\ntau_obs = 0.0325\na_n = 0.0028\n'
+    )
+    (tmp_path / "np.csv").write_text(csv_text(5, 200.0))
+    s = read_session(tmp_path)
+    assert s.format == "uavsim-session/1" and s.reading == 1
+    out = write_session(s, tmp_path / "copy")
+    assert 'format = "uavsim-session/1"' in (out / "session.toml").read_text()
+    # a new session is version 2, with the half-wave reading
+    s.format = FORMAT
+    assert s.reading == 2
+    assert 'format = "uavsim-session/2"' in (write_session(s, tmp_path / "v2") / "session.toml").read_text()
+    s.format = "uavsim-session/9"
+    with pytest.raises(SessionError, match="format"):
+        write_session(s, tmp_path / "bad")

@@ -38,8 +38,7 @@ seed = 3
 classes = {classes}
 
 [test]
-tau_obs = 0.03
-a_n = 1.0
+settings = "recommended"
 
 [episodes]
 per_class = {per_class}

@@ -6,17 +6,24 @@ paper's box, runs plain MRFT noise-free to get each process's reference period
 with time inhibition, the two-relay controller (``uavsim.control.baselines``)
 and NP-MRFT -- under every study noise (``uavsim.noise.models``) at levels 5,
 10, 20% of ``a0``. NP-MRFT gets its ``tau_obs`` and ``a_n`` the way a user
-would: ``estimate_noise`` on a hover segment with the same noise, then
-``recommend(est, beta, T0)``. All episodes of one controller and loop run as
-one batch.
+would, from nothing but a hover segment and its own relay runs (never the
+true period or amplitude): ``estimate_noise`` on a hover segment with the
+same noise and ``recommend(est, beta)`` for a first run, then ``refine`` on
+each run for the next (``--refinements``, default 2: three runs, the last one
+measured). All episodes of one controller and loop run as one batch.
 
 Per episode: period and amplitude of the steady-state cycle (``cycle_stats``
-on the measured output, NP-MRFT amplitude minus its ``a_n``), relative
-errors against the noise-free MRFT run of the same process, false switches
-per reference period, and whether the cycle is sustained. Rows aggregate
-over both loops per (controller, noise, level).
+on the measured output; NP-MRFT's amplitude is the user's estimate, the
+median half peak-to-peak of the error's smooth part that ``refine``
+measures), relative errors against the noise-free MRFT run of the same
+process, false switches per reference period, whether the cycle is
+sustained, and whether the relay deadlocked (held one output for more than
+two reference periods in the steady state of an episode that did not
+diverge; a diverged episode counts as a lost cycle). Rows aggregate over both loops
+per (controller, noise, level).
 
     uavsim bench noise --json --processes 20 --seed 0 > noise.json
+    uavsim bench noise --engine lumped --refinements 1       # the exact lumped loops, one refinement
 
 The simulator is the batched MuJoCo runner ``uavsim.sim.runner.LoopBatch``
 when present; otherwise (``--engine lumped``) the exact lumped reference
@@ -36,8 +43,8 @@ import numpy as np
 from uavsim.control.baselines import InhibitedMRFT, TwoRelayMRFT
 from uavsim.control.relay import MRFT, NPMRFT
 from uavsim.lumped.params import RANGES, LumpedParams
-from uavsim.noise.analysis import cycle_stats, false_switch_rate, sustained
-from uavsim.noise.estimate import estimate_noise, recommend
+from uavsim.noise.analysis import cycle_stats, false_switch_rate, sustained, switch_indices
+from uavsim.noise.estimate import estimate_noise, recommend, refine_batch, synthetic_hover
 from uavsim.noise.models import NOISE_KINDS, PerEpisode, make_noise
 
 CONTROLLERS = ("mrft", "mrft-inhibit", "two-relay", "np-mrft")
@@ -73,17 +80,20 @@ class BenchConfig:
         Inhibition time of ``mrft-inhibit`` as a fraction of the expected period T0.
     engine : str
         ``auto``, ``mujoco`` or ``lumped``.
+    refinements : int
+        NP-MRFT runs refined from the previous one (0: the hover's first-run settings).
     """
 
     processes: int = 20
     seed: int = 0
-    duration: float = 10.0
+    duration: float = 20.0
     beta: float = -0.73
     h: float = 1.0
     rate_hz: float = 200.0
     hover_s: float = 10.0
     inhibit_frac: float = 0.25
     engine: str = "auto"
+    refinements: int = 2
     kinds: tuple[str, ...] = NOISE_KINDS
     levels: tuple[float, ...] = LEVELS
     controllers: tuple[str, ...] = CONTROLLERS
@@ -161,17 +171,8 @@ def _simulate_lumped(params, controller, duration, measurement, rate_hz, seed) -
     return Episodes(np.arange(steps) * dt, Y, YT, U, div)
 
 
-def hover_segment(n: int, seconds: float, rate_hz: float, a0: np.ndarray, effect, rng: np.random.Generator):
-    """Noisy hover records (n, T): slow drift of 0.2 a0 (0.05-0.3 Hz) through ``effect``."""
-    steps = int(round(seconds * rate_hz))
-    t = np.arange(steps) / rate_hz
-    f = rng.uniform(0.05, 0.3, (n, 1))
-    ph = rng.uniform(0, 2 * np.pi, (n, 1))
-    drift = 0.2 * a0[:, None] * np.sin(2 * np.pi * f * t + ph)
-    if effect is None:
-        return drift
-    effect.reset(n, rate_hz, rng)
-    return np.stack([effect(drift[:, k], k) for k in range(steps)], axis=1)
+#: hover records for the noise estimate (``uavsim.noise.estimate.synthetic_hover``)
+hover_segment = synthetic_hover
 
 
 def make_controller(name: str, cfg: BenchConfig, n: int, T0: np.ndarray, tau_obs=None, a_n=None):
@@ -191,7 +192,15 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def run_loop(loop: str, cfg: BenchConfig, rng: np.random.Generator, a_n_scale: float = 1.0) -> list[dict]:
+def _longest_hold(t: np.ndarray, u: np.ndarray) -> float:
+    """Longest time the relay held one output in the steady state (last 70%), s (to the record's end included)."""
+    i0 = int(0.3 * t.size)
+    sw = switch_indices(u)
+    marks = np.concatenate(([i0], sw[sw > i0], [t.size - 1]))
+    return float(np.max(np.diff(t[marks]))) if marks.size > 1 else float(t[-1] - t[i0])
+
+
+def run_loop(loop: str, cfg: BenchConfig, rng: np.random.Generator) -> list[dict]:
     """All episodes of one loop; returns one record per (controller, episode)."""
     n = cfg.processes
     params = sample_processes(loop, n, rng)
@@ -210,49 +219,64 @@ def run_loop(loop: str, cfg: BenchConfig, rng: np.random.Generator, a_n_scale: f
     # episode grid: (kind, level) x process, plus the noise-free case once
     cases = [("none", 0.0)] + [(k, lv) for k in cfg.kinds for lv in cfg.levels]
     groups, ep_proc, ep_case = [], [], []
-    tau_obs, a_n = [], []
+    tau_obs, a_n, hover_a_n = [], [], []
     for ci, (kind, lv) in enumerate(cases):
         idx = np.arange(ci * n, (ci + 1) * n)
         eff = None if kind == "none" else make_noise(kind, lv, a0)
         groups.append((idx, eff))
         ep_proc.append(np.arange(n))
         ep_case.append(np.full(n, ci))
-        # NP-MRFT parameters from a hover segment with the same noise (a separate instance)
+        # NP-MRFT's first run from a hover segment with the same noise (a separate instance)
         hover = hover_segment(n, cfg.hover_s, cfg.rate_hz, a0,
                               None if kind == "none" else make_noise(kind, lv, a0), rng)
         for i in range(n):
             est = estimate_noise(hover[i], cfg.rate_hz)
-            to, an = recommend(est, cfg.beta, T0[i])
+            to, an = recommend(est, cfg.beta)
             tau_obs.append(to)
-            a_n.append(an * a_n_scale)
+            a_n.append(an)
+            hover_a_n.append(est.a_n)
     ep_proc = np.concatenate(ep_proc)
     ep_case = np.concatenate(ep_case)
     tau_obs = np.array(tau_obs)
     a_n = np.array(a_n)
+    first = (tau_obs.copy(), a_n.copy())
     N = ep_proc.size
     all_params = [params[i] for i in ep_proc]
     records = []
     for name in cfg.controllers:
         t_start = time.perf_counter()
-        ctrl = make_controller(name, cfg, N, T0[ep_proc], tau_obs, a_n)
-        meas = PerEpisode(groups=[(g[0], g[1]) for g in groups])
-        res = simulate(all_params, ctrl, cfg.duration, meas, cfg.rate_hz, int(rng.integers(2**31)), cfg.engine)
+        stages = cfg.refinements + 1 if name == "np-mrft" else 1
+        for stage in range(stages):
+            ctrl = make_controller(name, cfg, N, T0[ep_proc], tau_obs, a_n)
+            meas = PerEpisode(groups=[(g[0], g[1]) for g in groups])
+            res = simulate(all_params, ctrl, cfg.duration, meas, cfg.rate_hz, int(rng.integers(2**31)), cfg.engine)
+            if name != "np-mrft":
+                break
+            # the user's next run: settings refined from this run alone
+            rf = refine_batch(res.t, -np.nan_to_num(res.y), res.u, beta=cfg.beta, tau_obs=tau_obs, a_n=a_n,
+                              rate_hz=cfg.rate_hz, hover_a_n=np.array(hover_a_n))
+            if stage < stages - 1:
+                tau_obs, a_n = rf["tau_obs"], rf["a_n"]
         for j in range(N):
             p, c = ep_proc[j], ep_case[j]
             kind, lv = cases[c]
             per, amp, ncyc = cycle_stats(res.t, res.y[j], res.u[j])
             if name == "np-mrft":
-                amp = amp - a_n[j]
+                amp = rf["amplitude"][j]
             ok = (not res.diverged[j]) and sustained(res.t, res.y_true[j], res.u[j], a0[p])
+            hold = _longest_hold(res.t, res.u[j]) / T0[p]
             records.append({
                 "loop": loop, "controller": name, "noise": kind, "level": lv, "process": int(p),
                 "period_err": per / T0[p] - 1.0, "amp_err": amp / a0[p] - 1.0,
                 "false_switch_rate": false_switch_rate(res.t, res.u[j], T0[p]),
-                "sustained": ok, "T0": T0[p], "a0": a0[p],
+                "sustained": ok, "deadlock": bool(hold > 2.0 and not res.diverged[j]), "longest_hold_T0": hold, "T0": T0[p], "a0": a0[p],
                 "tau_obs": float(tau_obs[j]) if name == "np-mrft" else None,
                 "a_n": float(a_n[j]) if name == "np-mrft" else None,
+                "tau_obs_first": float(first[0][j]) if name == "np-mrft" else None,
+                "a_n_first": float(first[1][j]) if name == "np-mrft" else None,
             })
-        _log(f"{loop}: {name} on {N} episodes in {time.perf_counter() - t_start:.1f} s")
+        _log(f"{loop}: {name} on {N} episodes ({stages} run{'s' * (stages > 1)}) in "
+             f"{time.perf_counter() - t_start:.1f} s")
     return records
 
 
@@ -280,6 +304,8 @@ def aggregate(records: list[dict]) -> list[dict]:
             "period_err_p95": _nanq(np.abs(pe), 0.95),
             "amp_err_median": _nanq(ae, 0.5),
             "no_limit_cycle": int(sum(not r["sustained"] for r in sel)),
+            "deadlock": int(sum(r.get("deadlock", False) for r in sel)),
+            "longest_hold_T0": float(max(r.get("longest_hold_T0", float("nan")) for r in sel)),
             "false_switch_rate": float(np.nanmean(fs)) if np.any(np.isfinite(fs)) else float("nan"),
         }
         row["goal"] = _goal(row)
@@ -293,6 +319,8 @@ def _goal(row: dict) -> str:
         miss = []
         if row["no_limit_cycle"] > 0:
             miss.append(f"lost {row['no_limit_cycle']}")
+        if row["deadlock"] > 0:
+            miss.append(f"deadlock {row['deadlock']}")
         if not row["false_switch_rate"] <= GOAL_FALSE_SWITCH:
             miss.append(f"fsr {row['false_switch_rate']:.3f}")
         if not abs(row["period_err_median"]) <= GOAL_PERIOD_MEDIAN:
@@ -308,7 +336,7 @@ def _goal(row: dict) -> str:
 
 
 COLUMNS = ["controller", "noise", "level", "runs", "period_err_median", "period_err_p95", "amp_err_median",
-           "no_limit_cycle", "false_switch_rate", "goal"]
+           "no_limit_cycle", "deadlock", "false_switch_rate", "goal"]
 
 
 def run_bench(cfg: BenchConfig) -> dict:
@@ -320,7 +348,7 @@ def run_bench(cfg: BenchConfig) -> dict:
     engine = "mujoco" if (cfg.engine == "mujoco" or (cfg.engine == "auto" and _runner_available())) else "lumped"
     return {"rows": aggregate(records), "engine": engine,
             "config": {"processes": cfg.processes, "seed": cfg.seed, "duration": cfg.duration, "beta": cfg.beta,
-                       "rate_hz": cfg.rate_hz, "loops": list(LOOPS)},
+                       "rate_hz": cfg.rate_hz, "loops": list(LOOPS), "refinements": cfg.refinements},
             "records": records}
 
 
@@ -356,8 +384,10 @@ def register(subparsers) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object {rows: [...]} on stdout")
     p.add_argument("--processes", type=int, default=20, help="random processes per loop (default 20)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=10.0, help="episode length, s (default 10)")
+    p.add_argument("--duration", type=float, default=20.0, help="episode length, s (default 20)")
     p.add_argument("--engine", choices=("auto", "mujoco", "lumped"), default="auto")
+    p.add_argument("--refinements", type=int, default=2,
+                   help="NP-MRFT runs refined from the previous run (default 2: hover, 3 runs, the last measured)")
     p.add_argument("--plot", metavar="PNG", help="write a plot of the period errors")
     p.add_argument("--records", action="store_true", help="include per-episode records in the JSON")
     p.set_defaults(func=_main)
@@ -371,7 +401,10 @@ def _main(args: argparse.Namespace) -> int:
         raise UserError(f"--processes must be >= 1, got {args.processes}")
     if not (math.isfinite(args.duration) and args.duration >= 2.0):
         raise UserError(f"--duration must be >= 2 s, got {args.duration}")
-    cfg = BenchConfig(processes=args.processes, seed=args.seed, duration=args.duration, engine=args.engine)
+    if not 0 <= args.refinements <= 5:
+        raise UserError(f"--refinements must be in 0..5, got {args.refinements}")
+    cfg = BenchConfig(processes=args.processes, seed=args.seed, duration=args.duration, engine=args.engine,
+                      refinements=args.refinements)
     out = run_bench(cfg)
     if not args.records:
         out.pop("records")

@@ -6,14 +6,17 @@ depend on how busy the machine is:
 - ``raw_steps_per_s``: ``Batch.step`` on ``nsim`` simulations, no controller;
 - ``closed_loop_steps_per_s``: ``LoopBatch`` with a numpy MRFT at 200 Hz;
 - ``python_loop_steps_per_s``: a plain Python loop over ``MjData`` with the
-  same relay, one simulation after another (measured on fewer simulations and
-  reported per simulated step);
+  same relay, simulations split over as many processes as the batch has
+  threads (Python threads would share one interpreter lock), each one
+  simulation after another (measured on fewer simulations and reported per
+  simulated step);
 - ``ratio_closed_loop_to_raw`` and ``ratio_closed_loop_to_python``.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import time
 
 import mujoco
@@ -31,6 +34,27 @@ def _params(n: int, rng: np.random.Generator) -> list[LumpedParams]:
                      T1=float(rng.uniform(0.2, 2)), tau=float(rng.uniform(0.001, 0.06)))
         for _ in range(n)
     ]
+
+
+def _python_loop(params: list[LumpedParams], dt: float, rate_hz: float, T: int) -> tuple[int, float]:
+    """A plain Python loop over MjData, one simulation after another: (physics steps made, seconds taken)."""
+    lb = LoopBatch(params, dt=dt, rate_hz=rate_hz, y0=np.full(len(params), -1e-3))
+    mix = lb.vehicle.mixer()[:, 0] / lb.vehicle.thrust_per_us
+    done = 0
+    t0 = time.perf_counter()
+    for i in range(len(params)):
+        model = lb.batch.get_model(i)
+        d = mujoco.MjData(model)
+        d.qpos[2] = -1e-3
+        relay = MRFT(-0.73, 1.0, rate_hz, 1)
+        scale = lb.map.cmd_scale[i]
+        for _ in range(T):
+            u = relay(np.array([-d.qpos[2]]))[0]
+            d.ctrl[:] = scale * u * mix
+            for _ in range(lb.rate_steps):
+                mujoco.mj_step(model, d)
+        done += T * lb.rate_steps
+    return done, time.perf_counter() - t0
 
 
 def bench_sim(nsim: int = 1024, duration_s: float = 2.0, dt: float = 0.001, rate_hz: float = 200.0,
@@ -58,27 +82,16 @@ def bench_sim(nsim: int = 1024, duration_s: float = 2.0, dt: float = 0.001, rate
         lb2.run(MRFT(-0.73, 1.0, rate_hz, nsim), duration_s)
         closeds.append(steps / (time.perf_counter() - t0))
     raw, closed = float(np.median(raws)), float(np.median(closeds))
-    # a plain Python loop over MjData with the same relay and mapping
-    m = lb.model
-    py_steps = 0
-    t0 = time.perf_counter()
-    mix = lb.vehicle.mixer()[:, 0] / lb.vehicle.thrust_per_us
-    for i in range(python_sims):
-        model = lb.batch.get_model(i)
-        d = mujoco.MjData(model)
-        d.qpos[2] = -1e-3
-        relay = MRFT(-0.73, 1.0, rate_hz, 1)
-        scale = lb.map.cmd_scale[i]
-        for _ in range(T):
-            u = relay(np.array([-d.qpos[2]]))[0]
-            d.ctrl[:] = scale * u * mix
-            for _ in range(lb.rate_steps):
-                mujoco.mj_step(model, d)
-        py_steps += T * lb.rate_steps
-    py = py_steps / (time.perf_counter() - t0)
-    del m
+    # a plain Python loop over MjData with the same relay and mapping, on the batch's thread count
+    nthread = int(lb.batch.nthread)
+    python_sims = max(python_sims, nthread)
+    shares = [[params[i] for i in range(k, python_sims, nthread)] for k in range(nthread)]
+    with cf.ProcessPoolExecutor(max_workers=nthread) as ex:
+        done = list(ex.map(_python_loop, shares, [dt] * nthread, [rate_hz] * nthread, [T] * nthread))
+    # the processes ran side by side: their steps over the longest one's loop time (start-up excluded)
+    py = sum(n for n, _ in done) / max(s for _, s in done)
     return {
-        "nsim": nsim, "nthread": lb.batch.nthread, "dt": dt, "rate_hz": rate_hz, "rounds": rounds,
+        "nsim": nsim, "nthread": lb.batch.nthread, "python_loop_processes": nthread, "dt": dt, "rate_hz": rate_hz, "rounds": rounds,
         "raw_steps_per_s": raw, "closed_loop_steps_per_s": closed, "python_loop_steps_per_s": py,
         "ratio_closed_loop_to_raw": closed / raw, "ratio_closed_loop_to_python": closed / py,
     }

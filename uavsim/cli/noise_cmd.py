@@ -1,15 +1,21 @@
 """``uavsim noise SESSION``: measure the noise of a flight segment and recommend NP-MRFT settings.
 
 Reads the session, takes one run (``--run FILE``, default the first), forms
-the error ``e = r - y`` and estimates the noise period ``T_n``, the noise
-amplitude ``a_n`` and ``sigma`` (``uavsim.noise.estimate``):
+the error ``e = r - y`` and recommends ``tau_obs`` and ``a_n`` for the next
+relay run (``uavsim.noise.estimate``), from nothing but the session:
 
-- a step run: only the settled part (the last half after the step) is used;
-- a relay run (mrft / np-mrft): the oscillation is high-passed above its
-  harmonics, and its measured period gives ``T0`` for ``beta_min``.
+- a step run is a hover segment: its settled part (the last half after the
+  step) gives the noise period ``T_n`` and amplitude, hence a *first* run's
+  settings (``recommend``);
+- a relay run (mrft / np-mrft) is refined (``refine``): its measured period
+  and amplitude, the time its error takes from an extremum to the switching
+  level (what beta allows ``tau_obs`` to be on this cycle) and how early or late
+  it switched against the noise-free level give the next run's settings.
+  Refine again from that next run until the settings settle (two refinements
+  are what ``uavsim bench noise`` measures).
 
-It prints the recommended ``tau_obs`` and ``a_n`` and the resulting
-``beta_min`` for the run's beta (``--beta`` overrides it).
+It also prints ``beta_min`` (the paper's formula) for the recommended
+``tau_obs`` at the measured period; ``--beta`` overrides the run's beta.
 
     uavsim noise flights/2024-05-01 --run mrft_b073_h1.csv --json
 """
@@ -17,14 +23,12 @@ It prints the recommended ``tau_obs`` and ``a_n`` and the resulting
 from __future__ import annotations
 
 import argparse
-import math
 
 import numpy as np
 
 from uavsim.cli._common import print_json, print_table
 from uavsim.errors import UserError
-from uavsim.noise.analysis import cycle_stats
-from uavsim.noise.estimate import estimate_noise, recommend, recommended_beta_min
+from uavsim.noise.estimate import estimate_noise, recommend, recommended_beta_min, refine
 
 
 def register(subparsers) -> None:
@@ -50,31 +54,35 @@ def analyse(session, run_file: str | None = None, beta: float | None = None) -> 
     d = run.data
     rate = float(session.control_rate_hz)
     e = np.asarray(d.r, dtype=float) - np.asarray(d.y, dtype=float)
-    period = None
-    segment = e
+    b = beta if beta is not None else (run.spec.beta if run.spec.beta is not None else -0.73)
     if run.spec.kind == "step":
         t_step = run.spec.step_time or 0.0
         # settled part: the second half of what follows the step
         start = t_step + 0.5 * (d.t[-1] - t_step)
-        segment = e[d.t >= start]
-        how = f"settled part of the step run (t >= {start:.3g} s)"
+        how = f"settled part of the step run (t >= {start:.3g} s) as a hover segment: a first run's settings"
+        est = estimate_noise(e[d.t >= start], rate)
+        tau_obs, a_n = recommend(est, b)
+        out = {"T_n": est.T_n, "a_n": a_n, "a_n_mean": est.a_n_mean, "sigma": est.sigma,
+               "cutoff_hz": est.cutoff_hz, "period": None, "amplitude": None, "level_time": None,
+               "switch_error": None, "refined": False, "notes": est.notes}
     else:
-        period, _, ncyc = cycle_stats(d.t, e, d.u)
-        if ncyc >= 2 and math.isfinite(period):
-            how = f"oscillation of period {period:.4g} s, high-passed above its harmonics"
-        else:
-            period = None
-            how = "relay run without a steady cycle: treated as a hover segment"
-    b = beta if beta is not None else (run.spec.beta if run.spec.beta is not None else -0.73)
-    est = estimate_noise(segment, rate, period=period)
-    tau_obs, a_n = recommend(est, b, period)
+        run_tau = float(run.spec.tau_obs or 0.0) if run.spec.kind == "np-mrft" else 1.0 / rate
+        run_a_n = float(run.spec.a_n or 0.0) if run.spec.kind == "np-mrft" else 0.0
+        ref = refine(np.asarray(d.t, dtype=float), e, np.asarray(d.u, dtype=float), beta=b, tau_obs=run_tau,
+                     a_n=run_a_n, rate_hz=rate)
+        tau_obs, a_n = ref.tau_obs, ref.a_n
+        period = ref.period if np.isfinite(ref.period) else None
+        how = (f"relay run refined: {ref.half_cycles} half-cycles of period {ref.period:.4g} s"
+               if ref.refined else "relay run without enough steady half-cycles: its settings kept")
+        est = ref.noise
+        out = {"T_n": est.T_n, "a_n": a_n, "a_n_mean": est.a_n_mean, "sigma": est.sigma,
+               "cutoff_hz": est.cutoff_hz, "period": period, "amplitude": ref.amplitude,
+               "level_time": ref.level_time, "switch_error": ref.switch_error, "refined": ref.refined,
+               "notes": ref.notes + est.notes}
     return {
         "session": str(session.path) if session.path is not None else None,
-        "run": run.spec.file, "kind": run.spec.kind, "segment": how,
-        "T_n": est.T_n, "a_n": a_n, "a_n_mean": est.a_n_mean, "sigma": est.sigma,
-        "cutoff_hz": est.cutoff_hz, "period": period, "beta": b,
-        "tau_obs": tau_obs, "beta_min": recommended_beta_min(tau_obs, period),
-        "notes": est.notes,
+        "run": run.spec.file, "kind": run.spec.kind, "segment": how, **out, "beta": b,
+        "tau_obs": tau_obs, "beta_min": recommended_beta_min(tau_obs, out["period"]),
     }
 
 
@@ -88,8 +96,9 @@ def main(args: argparse.Namespace) -> int:
         print_json(out)
         return 0
     rows = [{"quantity": k, "value": out[k], "unit": u} for k, u in (
-        ("T_n", "s"), ("a_n", "output units"), ("a_n_mean", "output units"), ("sigma", "output units"),
-        ("cutoff_hz", "Hz"), ("period", "s"), ("tau_obs", "s"), ("beta", ""), ("beta_min", ""))]
+        ("tau_obs", "s"), ("a_n", "output units"), ("T_n", "s"), ("a_n_mean", "output units"),
+        ("sigma", "output units"), ("cutoff_hz", "Hz"), ("period", "s"), ("amplitude", "output units"),
+        ("level_time", "s"), ("switch_error", "output units"), ("beta", ""), ("beta_min", ""))]
     print(f"run {out['run']} ({out['kind']}): {out['segment']}")
     print_table(rows, ["quantity", "value", "unit"])
     for note in out["notes"]:

@@ -1,4 +1,4 @@
-"""``uavsim session``: inspect flight sessions (format ``uavsim-session/1``).
+"""``uavsim session``: inspect flight sessions (format ``uavsim-session/2``, or 1).
 
 ``check`` reads a session with every check of :mod:`uavsim.formats.session`
 and prints what it found, so a user can validate a folder from the field before
@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``session`` command and its actions to the top-level parser."""
     parser = subparsers.add_parser(
         "session",
-        help="inspect flight sessions and import flight logs",
+        help="inspect flight sessions (uavsim-session/2, or 1) and import flight logs",
         description="Inspect flight sessions: a folder with session.toml and one CSV per run.",
     )
     actions = parser.add_subparsers(dest="session_command", metavar="ACTION")

@@ -1,6 +1,6 @@
 """The step-test PD controller with a filtered derivative, vectorized.
 
-Normative sampled semantics of ``shared/formats/session.md`` ("step"):
+Normative sampled semantics of ``docs/formats/session.md`` ("step"):
 ``raw_k = (e_k - e_{k-1}) / Ts`` (0 on the first sample),
 ``d_k = d_{k-1} + a (raw_k - d_{k-1})`` with ``a = Ts N / (1 + Ts N)`` and
 ``N = 2 pi derivative_filter_hz``, ``u_k = kp e_k + kd d_k``.

@@ -3,13 +3,31 @@
 The modified relay feedback test switches a relay of amplitude ``h`` at a
 level proportional to the last extremum of the error, which places the
 self-excited oscillation at the phase ``arg G(j Omega) = -pi + asin(beta)``.
-NP-MRFT (paper eq. 19-23) only accepts an extremum once it has stood for
-``tau_obs`` and lowers the switching levels by ``a_n (1 - beta)``, so that
-measurement noise neither switches the relay early nor fools the extremum.
+NP-MRFT (paper eq. 19-27) tracks the extremum of each half-wave of the error
+*after its zero crossing*, only accepts it once it has stood for ``tau_obs``,
+and lowers the switching levels by ``a_n (1 - beta)``, so that measurement
+noise neither switches the relay early nor fools the extremum.
 
-This module is the normative sampled reading of ``shared/formats/session.md``
-("Controller semantics"), used both to generate sessions and to simulate
-them. One instance holds the state of ``n`` independent relays in numpy arrays;
+This module is the one implementation of the controller semantics of
+``docs/formats/session.md``, used to generate sessions and datasets and to
+simulate and replay them. Two readings exist:
+
+``reading=2`` (format ``uavsim-session/2``, the default)
+    The half-wave reading: after a switch to ``-h`` the minimum is tracked
+    only from the first sample with ``e`` at or below the cycle's centre (to
+    ``+h``: the maximum from the first at or above it): zero, as in the paper,
+    or, for a relay with a bias, the last cycle's mean error
+    (:attr:`NPMRFT.centre`). If that half-wave has not started within ``W``
+    samples of the switch (``W`` = :func:`guard_fraction` of the longer of the
+    two previous half-periods), tracking starts anyway at that sample
+    (deadlock guard): a relay whose switch was false is never left waiting for
+    a zero crossing that the loop, driven away by that very switch, will not
+    make.
+``reading=1`` (format ``uavsim-session/1``)
+    The tracker restarts at the switch sample (kept to read version-1
+    sessions exactly as they were written).
+
+One instance holds the state of ``n`` independent relays in numpy arrays;
 call it once per controller sample with the errors ``e`` (shape ``(n,)``).
 
     relay = NPMRFT(beta=-0.73, h=0.2, tau_obs=0.0325, a_n=0.003, rate_hz=200.0, n=1024)
@@ -28,6 +46,11 @@ import math
 import numpy as np
 
 from uavsim.errors import UserError
+
+#: relay readings: 1 = tracker restarts at the switch (uavsim-session/1), 2 = half-wave after the zero crossing
+READINGS = (1, 2)
+#: the reading sessions are written with
+READING = 2
 
 
 def _as_batch(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
@@ -66,6 +89,13 @@ def check_relay_params(beta, h, tau_obs=0.0, a_n=0.0, rate_hz: float = 200.0) ->
         raise UserError(f"controller rate must be > 0 Hz, got {rate_hz}")
 
 
+def check_reading(reading: int) -> int:
+    """``reading`` as an int, or ``UserError`` when it is not one of :data:`READINGS`."""
+    if isinstance(reading, bool) or reading not in READINGS:
+        raise UserError(f"relay reading must be one of {', '.join(map(str, READINGS))}, got {reading!r}")
+    return int(reading)
+
+
 def beta_min(tau_obs: float | np.ndarray, period: float | np.ndarray) -> np.ndarray:
     """Smallest realizable NP-MRFT beta for an observation time and a cycle period.
 
@@ -83,6 +113,39 @@ def beta_min(tau_obs: float | np.ndarray, period: float | np.ndarray) -> np.ndar
     return -1.0 + np.sin(2.0 * np.pi * np.minimum(ratio, 0.25))
 
 
+def tau_obs_limit(beta: float | np.ndarray, period: float | np.ndarray) -> np.ndarray:
+    """Longest ``tau_obs`` that leaves a sinusoidal cycle's switching unchanged, s.
+
+    On ``e = a0 cos(2 pi t / T0)`` the error reaches the switching level
+    ``-beta a0`` at ``t = T0 acos(-beta) / (2 pi)`` after the extremum; an
+    extremum confirmed before that moves no switch. :func:`beta_min` (the
+    paper's formula) is more conservative: it is the same bound for a
+    triangle-like cycle, whose extremum is sharp.
+
+    Parameters
+    ----------
+    beta : float or array
+        MRFT parameter in (-1, 1).
+    period : float or array
+        Cycle period T0, s.
+    """
+    b = np.clip(np.asarray(beta, dtype=np.float64), -1.0, 1.0)
+    return np.asarray(period, dtype=np.float64) * np.arccos(-b) / (2.0 * np.pi)
+
+
+def guard_fraction(beta: float | np.ndarray) -> np.ndarray:
+    """Deadlock guard of the half-wave reading: ``W = guard_fraction(beta) x`` the longer previous half-period.
+
+    ``1/4 + asin(max(-beta, 0)) / pi``: on a sinusoidal cycle the error crosses
+    zero ``asin(-beta) / pi`` of a half-period after the switch (beta < 0; at
+    once for beta >= 0), so the guard never acts on an undisturbed cycle (0.51
+    at beta = -0.73, at most 0.75); and as it is below 1, a relay driven only
+    by the guard cannot lengthen its half-periods without bound.
+    """
+    b = np.asarray(beta, dtype=np.float64)
+    return 0.25 + np.arcsin(np.clip(-b, 0.0, 1.0)) / np.pi
+
+
 class NPMRFT:
     """``n`` NP-MRFT relays stepped together at ``rate_hz``.
 
@@ -95,13 +158,26 @@ class NPMRFT:
         Controller rate, Hz; one call is one sample.
     n : int
         Number of relays.
+    reading : int
+        2 (default): the half-wave reading of ``uavsim-session/2``; 1: the
+        version-1 reading (tracker restarted at the switch sample).
+
+    Attributes
+    ----------
+    switched : (n,) bool
+        True where the relay switched at the last sample.
+    armed : (n,) bool
+        True where the current half-wave's extremum is being tracked.
+    guard : (n,) bool
+        True where the deadlock guard started the tracking at the last sample.
     """
 
     #: name written in sessions
     kind = "np-mrft"
 
-    def __init__(self, beta, h, tau_obs, a_n, rate_hz: float, n: int, bias=0.0):
+    def __init__(self, beta, h, tau_obs, a_n, rate_hz: float, n: int, bias=0.0, reading: int = READING):
         check_relay_params(beta, h, tau_obs, a_n, rate_hz)
+        self.reading = check_reading(reading)
         self.n = int(n)
         self.rate_hz = float(rate_hz)
         self.beta = _as_batch("beta", beta, n)
@@ -112,17 +188,64 @@ class NPMRFT:
         # Confirmation counted in whole samples: t - t_ext >= tau_obs on a grid of
         # Ts, with a tolerance so that tau_obs = 6.5 * Ts is not lost to rounding.
         self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
+        self.rho = guard_fraction(self.beta)
+        self._corr = self.a_n * (1.0 - self.beta)
+        # the centre is zero without a relay bias: its running sums are then not needed
+        self._biased = bool(np.any(self.bias != 0))
         self.reset()
+
+    def retune(self, tau_obs=None, a_n=None) -> None:
+        """New ``tau_obs`` and/or ``a_n`` (float or (n,)) from the next sample on; the relay's state is kept.
+
+        How dataset generation runs a user's successive relay runs within one episode.
+        """
+        check_relay_params(self.beta, self.h, 0.0 if tau_obs is None else tau_obs, 0.0 if a_n is None else a_n,
+                           self.rate_hz)
+        if tau_obs is not None:
+            self.tau_obs = _as_batch("tau_obs", tau_obs, self.n)
+            self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
+        if a_n is not None:
+            self.a_n = _as_batch("a_n", a_n, self.n)
+            self._corr = self.a_n * (1.0 - self.beta)
 
     def reset(self) -> None:
         """Forget everything: the next call is the first sample."""
         n = self.n
         self.k = 0
         self.sign = np.ones(n)          # +1 while u = +h, -1 while u = -h
-        self.e_ext = np.zeros(n)        # running extremum since the last switch
+        self.e_ext = np.zeros(n)        # extremum of the current half-wave
         self.k_ext = np.zeros(n, dtype=np.int64)
+        self.k_sw = np.zeros(n, dtype=np.int64)      # last switch (0: the start)
+        self.half = np.zeros((2, n), dtype=np.int64)  # the two previous half-periods, samples
+        self.k_sw2 = np.zeros(n, dtype=np.int64)     # the two switches before it
+        self.k_sw3 = np.zeros(n, dtype=np.int64)
+        self.n_sw = np.zeros(n, dtype=np.int64)      # switches so far
+        self.sum_e = np.zeros(n)        # sum of e over samples 0..k-1
+        self.sum_sw = np.zeros(n)       # sum_e at the last switch and at the two before
+        self.sum_sw2 = np.zeros(n)
+        self.sum_sw3 = np.zeros(n)
+        self._centre = np.zeros(n)
+        self.armed = np.ones(n, dtype=bool)
+        self.guard = np.zeros(n, dtype=bool)
         self.switched = np.zeros(n, dtype=bool)
         self.confirmed = np.zeros(n, dtype=bool)
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(n,) the level where a half-wave starts: zero, or with a relay bias the last cycle's mean error.
+
+        A relay without bias gives a cycle around zero: its half-waves start at
+        the paper's zero crossings. A bias makes the cycle asymmetric and, from
+        about a third of ``h``, puts a whole half-wave of it on one side of zero;
+        its half-waves start at the crossings of the mean error over the last
+        cycle (the last two half-periods; zero until three switches).
+        """
+        return self._centre
+
+    def _update_centre(self, rows: np.ndarray) -> None:
+        span = np.maximum(self.k_sw[rows] - self.k_sw3[rows], 1)
+        mean = (self.sum_sw[rows] - self.sum_sw3[rows]) / span
+        self._centre[rows] = np.where((self.bias[rows] != 0) & (self.n_sw[rows] >= 3), mean, 0.0)
 
     def _confirmed(self) -> np.ndarray:
         return (self.k - self.k_ext) >= self.n_obs
@@ -130,30 +253,83 @@ class NPMRFT:
     def __call__(self, e: np.ndarray) -> np.ndarray:
         """Advance one sample with errors ``e`` (n,); return the commands (n,)."""
         e = np.asarray(e, dtype=np.float64)
-        if self.k == 0:
+        k = self.k
+        if k == 0:
+            # the start counts as the start of a half-wave on the side of the first error
             self.sign = np.where(e >= 0, 1.0, -1.0)
+            self.sum_e = np.zeros(self.n)
             self.e_ext = e.copy()
             self.k_ext[:] = 0
+            self.k_sw[:] = 0
+            self.half[:] = 0
+            self.k_sw2[:] = 0
+            self.k_sw3[:] = 0
+            self.n_sw[:] = 0
+            self.sum_sw[:] = 0.0
+            self.sum_sw2[:] = 0.0
+            self.sum_sw3[:] = 0.0
+            self._centre[:] = 0.0
+            self.armed[:] = True
+            self.guard[:] = False
             self.switched[:] = False
             self.confirmed[:] = False
         else:
-            up = self.sign > 0
+            sgn = self.sign
+            up = sgn > 0
+            e_ext, k_ext = self.e_ext, self.k_ext
+            start = None
+            self.guard[:] = False
+            if self.reading == 2:
+                waiting = ~self.armed
+                if waiting.any():
+                    # the half-wave of this relay state starts at the first sample on its side of the
+                    # cycle's centre, or, by the deadlock guard, W samples after the switch
+                    side = sgn * (e - self._centre) >= 0 if self._biased else sgn * e >= 0
+                    wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
+                    start = waiting & (side | (k - self.k_sw >= wait))
+                    if start.any():
+                        self.guard = start & ~side
+                        e_ext[start] = e[start]
+                        k_ext[start] = k
+                        self.armed |= start
             # running max while u = +h, running min while u = -h (ties keep the first)
-            better = np.where(up, e > self.e_ext, e < self.e_ext)
-            self.e_ext = np.where(better, e, self.e_ext)
-            self.k_ext = np.where(better, self.k, self.k_ext)
-            conf = self._confirmed()
-            corr = self.a_n * (1.0 - self.beta)
-            # b2 = beta e_max + a_n (1 - beta): switch down when e <= -b2
-            down = up & conf & (e <= -(self.beta * self.e_ext + corr))
+            better = np.where(up, e > e_ext, e < e_ext)
+            better &= self.armed
+            if start is not None:
+                better &= ~start
+            if better.any():
+                e_ext[better] = e[better]
+                k_ext[better] = k
+            conf = self.armed & ((k - k_ext) >= self.n_obs)
+            corr = self._corr
+            t = self.beta * e_ext
+            # b2 = beta e_max + a_n (1 - beta): switch down when e <= -b2;
             # b1 = -beta e_min + a_n (1 - beta): switch up when e >= b1
-            upsw = ~up & conf & (e >= -self.beta * self.e_ext + corr)
-            sw = down | upsw
-            self.sign = np.where(sw, -self.sign, self.sign)
-            self.e_ext = np.where(sw, e, self.e_ext)
-            self.k_ext = np.where(sw, self.k, self.k_ext)
+            sw = conf & np.where(up, e <= -(t + corr), e >= -t + corr)
+            if sw.any():
+                self.sign = np.where(sw, -sgn, sgn)
+                self.half[1, sw] = self.half[0, sw]
+                self.half[0, sw] = k - self.k_sw[sw]
+                self.k_sw3[sw] = self.k_sw2[sw]
+                self.k_sw2[sw] = self.k_sw[sw]
+                self.k_sw[sw] = k
+                self.sum_sw3[sw] = self.sum_sw2[sw]
+                self.sum_sw2[sw] = self.sum_sw[sw]
+                self.sum_sw[sw] = self.sum_e[sw]
+                self.n_sw += sw
+                e_ext[sw] = e[sw]
+                k_ext[sw] = k
+                if self.reading == 2:
+                    # the new half-wave has started if e is already on its side of the centre
+                    if self._biased:
+                        self._update_centre(sw)
+                        self.armed[sw] = (self.sign * (e - self._centre) >= 0)[sw]
+                    else:
+                        self.armed[sw] = (self.sign * e >= 0)[sw]
             self.switched = sw
             self.confirmed = conf & ~sw
+        if self._biased:
+            self.sum_e += e
         self.k += 1
         return self.sign * self.h + self.bias
 
@@ -163,6 +339,6 @@ class MRFT(NPMRFT):
 
     kind = "mrft"
 
-    def __init__(self, beta, h, rate_hz: float, n: int, bias=0.0):
-        super().__init__(beta, h, 0.0, 0.0, rate_hz, n, bias)
+    def __init__(self, beta, h, rate_hz: float, n: int, bias=0.0, reading: int = READING):
+        super().__init__(beta, h, 0.0, 0.0, rate_hz, n, bias, reading)
         self.n_obs[:] = 1

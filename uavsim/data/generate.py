@@ -12,6 +12,15 @@ How it is made reproducible and resumable:
   level, initial output, randomized effect parameters) come from one
   ``np.random.default_rng(recipe.seed)`` in a fixed order, before anything runs,
   and are stored in the file.
+* **Relay settings.** With ``settings = "recommended"`` (the default) each
+  episode's NP-MRFT ``tau_obs`` and ``a_n`` are the ones a user gets from the
+  same path (``uavsim.noise.estimate``): a hover segment of the episode's own
+  noise gives the first run's settings (``recommend``); the episode then runs
+  ``refinements`` stages of ``refine_cycles`` cycles, each ending with the
+  settings refined from the stage's samples (``refine_batch``,
+  :class:`RefiningRelay`), before the episode proper. The final settings are
+  what the file stores per episode. ``settings = "fixed"`` keeps the recipe's
+  ``tau_obs`` (capped per class) and ``a_n`` (times the noise amplitude).
 * **Chunks.** Episodes are sorted by class period and cut into chunks of
   ``episodes.chunk``; a chunk is one ``LoopBatch`` whose episode length follows
   its slowest class (``episodes.cycles``), so fast classes do not pay for
@@ -54,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import NPMRFT
+from uavsim.control.relay import NPMRFT, READING
 from uavsim.data import preprocess
 from uavsim.data.h5 import CLASS_FIELDS, CLASS_PARAMS, FORMAT, write_dataset
 from uavsim.data.noise_trace import NoiseTrace
@@ -62,12 +71,22 @@ from uavsim.data.recipe import Recipe, parse_recipe
 from uavsim.errors import UserError
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects import make_effect
-from uavsim.noise.estimate import tau_obs_max
+from uavsim.noise.estimate import (
+    estimate_noise_batch,
+    recommend,
+    refine_batch,
+    synthetic_hover,
+    tau_obs_max,
+)
 from uavsim.noise.models import make_noise
 from uavsim.sim.runner import LoopBatch
 
 #: extra length over ``cycles`` slowest-class periods: noise and NP-MRFT lengthen cycles
 _CYCLE_MARGIN = 1.15
+#: s: the hover segment whose noise estimate gives a recommended episode its first settings
+HOVER_S = 10.0
+#: of a refinement stage: the transient skipped before its samples are analysed
+STAGE_SETTLE = 0.25
 
 
 @dataclass
@@ -78,7 +97,9 @@ class Plan:
     class-major order (episode ``e`` is episode ``e % per_class`` of label
     ``e // per_class``), then one reference episode per class (K = 1, no bias, no
     noise, mid-range effects) whose cycle goes to the class table as the cycle at
-    this control rate (``period_sim``, ``amplitude_sim``).
+    this control rate (``period_sim``, ``amplitude_sim``). ``tau_obs`` and ``a_n`` are
+    NaN with recommended settings (each episode finds its own, see :func:`episode_controller`);
+    ``stage_s`` is the length of each refinement stage of a chunk (0 with fixed settings).
     """
 
     recipe: Recipe
@@ -101,6 +122,7 @@ class Plan:
     durations: np.ndarray  # (n_chunks,) s
     sim_seeds: np.ndarray  # (n_chunks,) uint32
     n_train: int = 0
+    stage_s: np.ndarray | None = None  # (n_chunks,) s, refinement stage length (recommended settings)
 
     @property
     def n(self) -> int:
@@ -174,12 +196,14 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
     a0 = np.asarray(g.amplitude, dtype=float)[cls] * K * h
     y0 = y0u * recipe.randomize.y0 * a0
     period = np.asarray(g.period, dtype=float)
-    # tau_obs as the flight procedure sets it: no longer than beta allows for the expected cycle
+    fixed = recipe.test.settings == "fixed"
+    # fixed settings: tau_obs no longer than beta allows for the expected cycle ...
     cap = np.array([tau_obs_max(beta, float(period[c]), E.rate_hz) for c in class_index])
     # ... but at least one sample: with tau_obs = 0 a just-set extremum confirms itself and
     # the relay chatters (plain MRFT confirms one sample later too)
-    tau_obs = np.maximum(np.minimum(recipe.test.tau_obs, cap), 1.0 / E.rate_hz)[labels]
-    a_n = recipe.test.a_n * level * a0
+    cls_tau = np.maximum(np.minimum(recipe.test.tau_obs, cap), 1.0 / E.rate_hz) if fixed else np.full(nc, np.nan)
+    tau_obs = cls_tau[labels]
+    a_n = recipe.test.a_n * level * a0 if fixed else np.full(n, np.nan)
     # Reference episodes, one per class, after the training ones: the class at K = 1 with no
     # bias and no noise. The grid's period and amplitude are the continuous-time cycle; at
     # 200 Hz sampling lengthens the fastest classes' cycles by up to ~25% and their amplitude
@@ -188,9 +212,10 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
     ref = np.arange(nc, dtype=np.int32)
     labels = np.concatenate([labels, ref])
     K = np.concatenate([K, np.ones(nc)])
-    bias, level, y0, a_n = (np.concatenate([v, np.zeros(nc)]) for v in (bias, level, y0, a_n))
+    bias, level, y0 = (np.concatenate([v, np.zeros(nc)]) for v in (bias, level, y0))
+    a_n = np.concatenate([a_n, np.zeros(nc) if fixed else np.full(nc, np.nan)])
     kind = np.concatenate([kind, np.zeros(nc, np.int8)])
-    tau_obs = np.concatenate([tau_obs, np.maximum(np.minimum(recipe.test.tau_obs, cap), 1.0 / E.rate_hz)])
+    tau_obs = np.concatenate([tau_obs, cls_tau])
     for i, fx in enumerate(recipe.effects):
         for k, v in fx.params.items():
             if isinstance(v, tuple):
@@ -203,15 +228,20 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
     for lo_id, hi_id in ((0, n), (n, n + nc)):
         order = lo_id + np.argsort(period[cls[lo_id:hi_id]], kind="stable")
         chunks += [np.sort(order[i:i + E.chunk]) for i in range(0, hi_id - lo_id, E.chunk)]
+    stages = 0 if fixed else recipe.test.refinements
     if E.cycles is not None:
-        durs = [E.cycles * _CYCLE_MARGIN * float(period[cls[c]].max()) for c in chunks]
-        durations = np.ceil(np.asarray(durs) * E.rate_hz) / E.rate_hz
+        slowest = np.array([float(period[cls[c]].max()) for c in chunks])
+        stage_s = np.ceil(recipe.test.refine_cycles * _CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
+        main = np.ceil(E.cycles * _CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
     else:
-        durations = np.full(len(chunks), float(E.duration_s))
+        stage_s = np.full(len(chunks), float(E.duration_s))
+        main = np.full(len(chunks), float(E.duration_s))
+    stage_s = stage_s if stages else np.zeros(len(chunks))
+    durations = main + stages * stage_s
     sim_seeds = np.array([chunk_seed(recipe.seed, i, att_class) for i in range(len(chunks))], dtype=np.uint32)
     L = preprocess.input_length(grid)
     return Plan(recipe, g, att_class, class_index, beta, L, labels, K, bias, kind, level, y0, tau_obs, a_n, a0,
-                effect_params, chunks, durations, sim_seeds, n_train=n)
+                effect_params, chunks, durations, sim_seeds, n_train=n, stage_s=stage_s)
 
 
 def _noise_effect(kinds: tuple[str, ...], kind: np.ndarray, amp: np.ndarray, samples: int) -> NoiseTrace | None:
@@ -239,31 +269,109 @@ def _effects(plan: Plan, ids: np.ndarray, samples: int) -> list:
     return fx
 
 
+class RefiningRelay:
+    """NP-MRFT re-tuned ``refinements`` times, every ``stage`` samples, from the stage just run.
+
+    A user's successive relay runs (:func:`uavsim.noise.estimate.refine` on each run
+    for the next) within one episode, without their start transients: at samples
+    ``stage, 2 stage, ...`` the settings are refined (``refine_batch``) from the
+    stage's errors and outputs after its first ``STAGE_SETTLE`` and applied from
+    that sample on (``NPMRFT.retune``). Called like the relay, ``e`` (n,) -> ``u`` (n,).
+
+    Attributes
+    ----------
+    relay : NPMRFT
+    history : list of (tau_obs, a_n) arrays (n,), the settings of each stage
+    """
+
+    def __init__(self, relay: NPMRFT, stage: int, refinements: int, hover_a_n: np.ndarray):
+        self.relay = relay
+        self.stage = int(stage)
+        self.bounds = {self.stage * (i + 1) for i in range(refinements)} if self.stage > 0 else set()
+        T = max(self.bounds, default=0)
+        self.E = np.empty((relay.n, T))
+        self.U = np.empty((relay.n, T))
+        self.hover_a_n = np.asarray(hover_a_n, dtype=np.float64)
+        self.history = [(relay.tau_obs.copy(), relay.a_n.copy())]
+        self.k = 0
+
+    @property
+    def switched(self) -> np.ndarray:
+        return self.relay.switched
+
+    def __call__(self, e: np.ndarray) -> np.ndarray:
+        k = self.k
+        if k in self.bounds:
+            r = self.relay
+            a = k - self.stage
+            t = np.arange(self.stage) / r.rate_hz
+            rf = refine_batch(t, np.nan_to_num(self.E[:, a:k]), self.U[:, a:k], beta=r.beta, tau_obs=r.tau_obs,
+                              a_n=r.a_n, rate_hz=r.rate_hz, settle=STAGE_SETTLE * self.stage / r.rate_hz,
+                              hover_a_n=self.hover_a_n)
+            r.retune(rf["tau_obs"], rf["a_n"])
+            self.history.append((r.tau_obs.copy(), r.a_n.copy()))
+        u = self.relay(e)
+        if k < self.E.shape[1]:
+            self.E[:, k] = e
+            self.U[:, k] = u
+        self.k += 1
+        return u
+
+
+def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NPMRFT | RefiningRelay:
+    """The NP-MRFT of episodes ``ids`` (chunk ``chunk``, simulation seed ``seed``).
+
+    Fixed settings: the plan's. Recommended settings: each episode's hover
+    segment (``HOVER_S`` of its own noise, drawn from ``SeedSequence([seed, 1])``)
+    gives its first run's settings (``estimate_noise``, ``recommend``), refined in
+    the episode by :class:`RefiningRelay` every ``plan.stage_s[chunk]``.
+    """
+    r = plan.recipe
+    rate = r.episodes.rate_hz
+    m = len(ids)
+    if r.test.settings == "fixed":
+        return NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], rate, m, bias=plan.bias[ids])
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1]))
+    steps = int(round(HOVER_S * rate))
+    eff = _noise_effect(r.noise.kinds, plan.noise_kind[ids], plan.noise_level[ids] * plan.a0[ids], steps)
+    hover = synthetic_hover(m, HOVER_S, rate, plan.a0[ids], eff, rng)
+    tau, a_n, q = np.empty(m), np.empty(m), np.empty(m)
+    for i, est in enumerate(estimate_noise_batch(hover, rate)):
+        tau[i], a_n[i] = recommend(est, plan.beta)
+        q[i] = est.a_n
+    relay = NPMRFT(plan.beta, r.test.h, tau, a_n, rate, m, bias=plan.bias[ids])
+    stage = int(round(float(plan.stage_s[chunk]) * rate))
+    return RefiningRelay(relay, stage, r.test.refinements, q)
+
+
 def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, duration_s: float, seed: int,
-                 nthread: int = 0) -> dict[str, np.ndarray]:
-    """Simulate episodes ``ids`` of ``plan`` with the processes ``params`` and preprocess them.
+                 nthread: int = 0, chunk: int = 0) -> dict[str, np.ndarray]:
+    """Simulate episodes ``ids`` (of chunk ``chunk``) of ``plan`` with the processes ``params`` and preprocess them.
 
     Returns
     -------
     dict with ``ids`` (m,), ``X`` (m, C, L) float32, ``period``, ``amplitude``, ``response``
     (complex), ``response_period`` (m,) (``preprocess.CycleFeatures``),
-    ``ok``, ``diverged`` (m,) bool, ``duration_s`` scalar, and ``y``, ``u`` (m, T)
-    float32 when the recipe keeps raw traces.
+    ``ok``, ``diverged`` (m,) bool, ``tau_obs``, ``a_n`` (m,) the NP-MRFT settings of the
+    episode proper, ``duration_s`` scalar, and ``y``, ``u`` (m, T) float32 when the recipe
+    keeps raw traces.
     """
     r = plan.recipe
     m = len(ids)
     samples = int(round(duration_s * r.episodes.rate_hz))
     lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples), seed=seed,
                    nthread=nthread, y0=plan.y0[ids])
-    ctrl = NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], r.episodes.rate_hz, m, bias=plan.bias[ids])
+    ctrl = episode_controller(plan, ids, chunk, seed)
     res = lb.run(ctrl, duration_s)
+    relay = ctrl.relay if isinstance(ctrl, RefiningRelay) else ctrl
     resp: dict[str, np.ndarray] = {}
     X, period, amp, ok = preprocess.features_batch(
         np.nan_to_num(res.y), res.u, r.episodes.rate_hz, np.full(m, r.test.h), plan.bias[ids], plan.L,
         cycles=r.preprocess.cycles, response=resp)
     ok &= ~res.diverged
     out = {"ids": np.asarray(ids, dtype=np.int64), "X": X, "period": period, "amplitude": amp, "ok": ok,
-           "diverged": res.diverged.copy(), "duration_s": np.float64(duration_s), **resp}
+           "diverged": res.diverged.copy(), "tau_obs": relay.tau_obs.copy(), "a_n": relay.a_n.copy(),
+           "duration_s": np.float64(duration_s), **resp}
     if r.preprocess.keep_raw:
         out["y"] = res.y.astype(np.float32)
         out["u"] = res.u.astype(np.float32)
@@ -274,7 +382,7 @@ def run_chunk(plan: Plan, index: int, nthread: int = 0) -> dict[str, np.ndarray]
     """Simulate and preprocess chunk ``index`` of ``plan`` (a pure function of the plan and index)."""
     ids = plan.chunks[index]
     params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e])) for e in ids]
-    return run_episodes(params, plan, ids, float(plan.durations[index]), int(plan.sim_seeds[index]), nthread)
+    return run_episodes(params, plan, ids, float(plan.durations[index]), int(plan.sim_seeds[index]), nthread, index)
 
 
 @functools.lru_cache(maxsize=4)
@@ -296,7 +404,7 @@ class _Resume:
     def __init__(self, out: Path, plan: Plan):
         self.dir = out.with_name(out.name + ".resume")
         self.key = {"recipe_hash": plan.recipe.hash, "att_class": plan.att_class, "n_chunks": len(plan.chunks),
-                    "format": FORMAT}
+                    "format": FORMAT, "relay_reading": READING}
         state = self.dir / "state.json"
         if self.dir.exists():
             try:
@@ -506,6 +614,7 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dic
     period, amp = np.full(n, np.nan), np.full(n, np.nan)
     resp, resp_period = np.full(n, complex("nan")), np.full(n, np.nan)
     ok, div = np.zeros(n, bool), np.zeros(n, bool)
+    tau_obs, a_n = plan.tau_obs.copy(), plan.a_n.copy()
     seed_of = np.zeros(n, dtype=np.uint32)
     keep_raw = r.preprocess.keep_raw
     Tmax = int(round(plan.durations.max() * r.episodes.rate_hz)) if keep_raw else 0
@@ -518,6 +627,8 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dic
             res["diverged"]
         if "response" in res:  # chunks saved by an older version for resume lack it
             resp[ids], resp_period[ids] = res["response"], res["response_period"]
+        if "tau_obs" in res:
+            tau_obs[ids], a_n[ids] = res["tau_obs"], res["a_n"]
         seed_of[ids] = plan.sim_seeds[i]
         if keep_raw:
             T = res["y"].shape[1]
@@ -534,14 +645,17 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dic
     classes["period_sim"] = period[nt:].copy()
     classes["amplitude_sim"] = amp[nt:] / r.test.h
     J = np.asarray(g.J, float)[np.ix_(ci, ci)]
+    fixed = r.test.settings == "fixed"
     episodes = {"inputs": X[keep], "labels": plan.labels[keep], "K": plan.K[keep], "bias": plan.bias[keep],
                 "noise_kind": plan.noise_kind[keep], "noise_level": plan.noise_level[keep], "period": period[keep],
-                "amplitude": amp[keep], "y0": plan.y0[keep], "tau_obs": plan.tau_obs[keep], "a_n": plan.a_n[keep],
+                "amplitude": amp[keep], "y0": plan.y0[keep], "tau_obs": tau_obs[keep], "a_n": a_n[keep],
                 "episode": keep, "sim_seed": seed_of[keep], "response_re": resp[keep].real,
                 "response_im": resp[keep].imag, "response_period": resp_period[keep]}
     n_div = int(div[:nt].sum())
     attrs = {"loop": fam, "grid_hash": g.hash or "", "grid_version": int(g.version), "beta": plan.beta,
-             "h": r.test.h, "tau_obs": r.test.tau_obs, "a_n": r.test.a_n, "rate_hz": r.episodes.rate_hz,
+             "h": r.test.h, "relay_reading": READING, "relay_settings": r.test.settings,
+             "tau_obs": r.test.tau_obs if fixed else float("nan"), "a_n": r.test.a_n if fixed else float("nan"),
+             "refinements": 0 if fixed else r.test.refinements, "rate_hz": r.episodes.rate_hz,
              "dt": r.episodes.dt, "input_length": L, "input_rate_hz": preprocess.INPUT_RATE_HZ,
              "channels": list(preprocess.CHANNELS), "cycles_per_input": r.preprocess.cycles,
              "noise_kinds": list(r.noise.kinds), "recipe": r.text, "seed": r.seed,
@@ -703,18 +817,30 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     y0 = rng.uniform(-1.0, 1.0, n) * recipe.randomize.y0 * a0
     effect_params = {f"{i}_{fx.name}/{k}": rng.uniform(v[0], v[1], n)
                      for i, fx in enumerate(recipe.effects) for k, v in fx.params.items() if isinstance(v, tuple)}
-    tau_obs = np.array([max(min(recipe.test.tau_obs, tau_obs_max(beta, float(t), E.rate_hz)), 1.0 / E.rate_hz)
-                        for t in T0])
+    fixed = recipe.test.settings == "fixed"
+    if fixed:
+        tau_obs = np.array([max(min(recipe.test.tau_obs, tau_obs_max(beta, float(t), E.rate_hz)), 1.0 / E.rate_hz)
+                            for t in T0])
+        a_n = recipe.test.a_n * level * a0
+    else:
+        tau_obs, a_n = np.full(n, np.nan), np.full(n, np.nan)
     K = np.array([p.K for p in params])
-    duration = (E.cycles * _CYCLE_MARGIN * float(T0.max())) if E.cycles is not None else float(E.duration_s)
-    duration = math.ceil(duration * E.rate_hz) / E.rate_hz
+    stages = 0 if fixed else recipe.test.refinements
+    if E.cycles is not None:
+        main = math.ceil(E.cycles * _CYCLE_MARGIN * float(T0.max()) * E.rate_hz) / E.rate_hz
+        stage = math.ceil(recipe.test.refine_cycles * _CYCLE_MARGIN * float(T0.max()) * E.rate_hz) / E.rate_hz
+    else:
+        main = stage = float(E.duration_s)
+    stage = stage if stages else 0.0
+    duration = main + stages * stage
     ids = np.arange(n)
     plan = Plan(recipe, sub, None, np.arange(1), beta, preprocess.input_length(grid), np.zeros(n, np.int32), K,
-                bias, kind, level, y0, tau_obs, recipe.test.a_n * level * a0, a0, effect_params, [ids],
-                np.array([duration]), np.array([chunk_seed(seed, 0)], dtype=np.uint32), n_train=n)
+                bias, kind, level, y0, tau_obs, a_n, a0, effect_params, [ids],
+                np.array([duration]), np.array([chunk_seed(seed, 0)], dtype=np.uint32), n_train=n,
+                stage_s=np.array([stage]))
     res = run_episodes(list(params), plan, ids, duration, int(plan.sim_seeds[0]))
     meta = {"K": K, "bias": bias, "noise_kind": kind, "noise_kinds": list(recipe.noise.kinds), "noise_level": level,
-            "y0": y0, "tau_obs": tau_obs, "a_n": plan.a_n, "diverged": res["diverged"], "seed": seed,
+            "y0": y0, "tau_obs": res["tau_obs"], "a_n": res["a_n"], "diverged": res["diverged"], "seed": seed,
             "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
             "response": res["response"], "response_period": res["response_period"],
             "harmonics_y": res["harmonics_y"], "harmonics_u": res["harmonics_u"]}

@@ -22,8 +22,20 @@ Recipe reference (every key optional unless marked)::
     [test]
     beta = -0.73                 # default: the grid's beta (the classes' oscillation is for it)
     h = 1.0                      # relay amplitude, command units
-    tau_obs = 0.03               # s, NP-MRFT observation time, capped per class so beta_min <= beta
-    a_n = 1.0                    # NP-MRFT a_n as a multiple of the episode's noise amplitude
+    settings = "recommended"     # NP-MRFT tau_obs and a_n as a user gets them (default), or "fixed"
+    refinements = 2              # recommended: relay runs refined from the previous one, in the episode
+    refine_cycles = 4            # recommended: length of each refined run, in cycles (as episodes.cycles)
+    # tau_obs = 0.03             # fixed only: s, capped per class so beta_min <= beta
+    # a_n = 1.0                  # fixed only: a multiple of the episode's noise amplitude
+
+With ``settings = "recommended"`` every episode gets the NP-MRFT settings of
+the user's procedure (``uavsim.noise.estimate``): a hover segment of the
+episode's own noise gives the first run's settings (``recommend``), and the
+episode then runs ``refinements`` times ``refine_cycles`` cycles (or
+``duration_s``) with settings refined from the run before (``refine``)
+before the episode proper (``cycles`` or ``duration_s``) with the last ones.
+A recipe that gives ``tau_obs`` or ``a_n`` and no ``settings`` is read as
+``settings = "fixed"`` (how recipes were written before).
 
     [episodes]
     per_class = 80               # required
@@ -65,6 +77,8 @@ from uavsim.errors import UserError
 from uavsim.noise.models import NOISE_KINDS
 
 LOOP_FAMILIES = ("altitude", "attitude", "lateral")
+#: how episodes get their NP-MRFT tau_obs and a_n
+SETTINGS = ("recommended", "fixed")
 #: noise kinds a recipe may name: "none" plus the study models
 RECIPE_NOISE_KINDS = ("none",) + tuple(NOISE_KINDS)
 
@@ -79,14 +93,23 @@ class TestSpec:
         MRFT parameter in (-1, 1); None: the grid's beta.
     h : float
         Relay amplitude, command units, > 0.
+    settings : str
+        ``"recommended"`` (the user's procedure) or ``"fixed"`` (``tau_obs``, ``a_n``).
+    refinements : int
+        Recommended settings: refined runs before the episode proper.
+    refine_cycles : float
+        Recommended settings: length of each refined run, cycles of the chunk's slowest class.
     tau_obs : float
-        NP-MRFT observation time, s, >= 0 (capped per class, see module docstring).
+        Fixed settings: NP-MRFT observation time, s, >= 0 (capped per class, see module docstring).
     a_n : float
-        NP-MRFT ``a_n`` relative to the episode's noise amplitude, >= 0.
+        Fixed settings: NP-MRFT ``a_n`` relative to the episode's noise amplitude, >= 0.
     """
 
     beta: float | None = None
     h: float = 1.0
+    settings: str = "recommended"
+    refinements: int = 2
+    refine_cycles: float = 4.0
     tau_obs: float = 0.03
     a_n: float = 1.0
 
@@ -162,7 +185,7 @@ class Recipe:
 
 
 _SECTIONS = {
-    "test": ("beta", "h", "tau_obs", "a_n"),
+    "test": ("beta", "h", "settings", "refinements", "refine_cycles", "tau_obs", "a_n"),
     "episodes": ("per_class", "cycles", "duration_s", "dt", "rate_hz", "chunk"),
     "randomize": ("K", "bias", "y0"),
     "noise": ("kinds", "weights", "level"),
@@ -243,7 +266,22 @@ def parse_recipe(text: str, source: str = "<recipe>", name: str = "recipe") -> R
     beta = None if "beta" not in t else _num(src, "test.beta", t["beta"], -1, 1)
     if beta is not None and not -1 < beta < 1:
         raise UserError(f"{src}: test.beta must lie in (-1, 1), got {beta}")
-    test = TestSpec(beta=beta, h=_num(src, "test.h", t.get("h", 1.0), 0, strict_lo=True),
+    fixed_keys = [k for k in ("tau_obs", "a_n") if k in t]
+    settings = t.get("settings", "fixed" if fixed_keys else "recommended")
+    if settings not in SETTINGS:
+        raise UserError(f"{src}: test.settings must be one of {', '.join(SETTINGS)}, got {settings!r}")
+    if settings == "recommended" and fixed_keys:
+        raise UserError(f"{src}: test.{fixed_keys[0]} only goes with settings = \"fixed\" (recommended settings come "
+                        f"from each episode's hover and relay runs)")
+    refine_keys = [k for k in ("refinements", "refine_cycles") if k in t]
+    if settings == "fixed" and refine_keys:
+        raise UserError(f"{src}: test.{refine_keys[0]} only goes with settings = \"recommended\"")
+    refinements = _int(src, "test.refinements", t.get("refinements", 2), 0)
+    if refinements > 5:
+        raise UserError(f"{src}: test.refinements must be <= 5, got {refinements}")
+    test = TestSpec(beta=beta, h=_num(src, "test.h", t.get("h", 1.0), 0, strict_lo=True), settings=settings,
+                    refinements=refinements,
+                    refine_cycles=_num(src, "test.refine_cycles", t.get("refine_cycles", 4.0), 2, strict_lo=True),
                     tau_obs=_num(src, "test.tau_obs", t.get("tau_obs", 0.03), 0),
                     a_n=_num(src, "test.a_n", t.get("a_n", 1.0), 0))
 

@@ -1,9 +1,10 @@
 """File formats of uavsim.
 
-For now one format: the flight *session* (``uavsim-session/1``), a folder with
-a ``session.toml`` and one ``t,r,y,u`` CSV per experiment, read for
-identification and the gap workflow and written from simulation. See
-:mod:`uavsim.formats.session` and ``shared/formats/session.md``.
+For now one format: the flight *session* (``uavsim-session/2``; version 1 is
+read too), a folder with a ``session.toml`` and one ``t,r,y,u`` CSV per
+experiment, read for identification and the gap workflow and written from
+simulation. See :mod:`uavsim.formats.session` and ``docs/formats/session.md``
+(the normative description).
 
     from uavsim.formats import read_session, write_session
 
@@ -15,6 +16,7 @@ from uavsim.formats.session import (
     CSV_HEADER,
     EFFECT_PARAMS,
     FORMAT,
+    FORMATS,
     LATERAL_LOOPS,
     LOOPS,
     RUN_KEYS,
@@ -42,6 +44,7 @@ __all__ = [
     "CSV_HEADER",
     "EFFECT_PARAMS",
     "FORMAT",
+    "FORMATS",
     "LATERAL_LOOPS",
     "LOOPS",
     "RUN_KEYS",

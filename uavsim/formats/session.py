@@ -1,12 +1,14 @@
-"""Flight sessions: reader, writer and checks for the ``uavsim-session/1`` format.
+"""Flight sessions: reader, writer and checks for the ``uavsim-session/2`` format.
 
 A *session* is one folder: a ``session.toml`` that says which loop was flown,
 at which controller rate, with which experiments ("runs") and optionally the
 current model of the loop and the effects the gap workflow found, plus one CSV
 file ``t,r,y,u`` per run. The normative description is
-``shared/formats/session.md``; this module is its one implementation, used both
+``docs/formats/session.md``; this module is its one implementation, used both
 for measured data (read) and for simulated data (written), so that both go
-through the same checks.
+through the same checks. Version-1 sessions are read too; ``Session.reading``
+says which NP-MRFT reading their relay runs were written with (pass it to
+``uavsim.control.relay.NPMRFT``).
 
 Two rules drive the design:
 
@@ -55,6 +57,7 @@ __all__ = [
     "CSV_HEADER",
     "EFFECT_PARAMS",
     "FORMAT",
+    "FORMATS",
     "LATERAL_LOOPS",
     "LOOPS",
     "RUN_KINDS",
@@ -78,7 +81,10 @@ __all__ = [
     "write_session",
 ]
 
-FORMAT = "uavsim-session/1"
+FORMAT = "uavsim-session/2"
+# Every version a reader accepts -> the NP-MRFT/MRFT reading its runs were written
+# with (uavsim.control.relay READINGS; docs/formats/session.md, "Versions").
+FORMATS: dict[str, int] = {"uavsim-session/1": 1, "uavsim-session/2": 2}
 SESSION_FILE = "session.toml"
 LOOPS = ("altitude", "roll", "pitch", "lateral_x", "lateral_y")
 # Lateral loops have the extra body time constant T2 (position is two
@@ -294,6 +300,9 @@ class Session:
         Effects added on top of the model (written by the gap workflow).
     path : Path or None
         Folder the session was read from (None when built in memory).
+    format : str
+        Format version, a key of :data:`FORMATS`: what was read, and what is
+        written (new sessions: :data:`FORMAT`).
     """
 
     loop: str
@@ -302,6 +311,14 @@ class Session:
     model: ModelSpec | None = None
     effects: list[EffectSpec] = field(default_factory=list)
     path: Path | None = None
+    format: str = FORMAT
+
+    @property
+    def reading(self) -> int:
+        """The relay reading of this session's np-mrft and mrft runs (1 or 2)."""
+        if self.format not in FORMATS:
+            raise SessionError(f"unsupported format {_short(self.format)} (known: {', '.join(FORMATS)})")
+        return FORMATS[self.format]
 
 
 # ---------------------------------------------------------------------------
@@ -648,6 +665,7 @@ def validate_session(session: Session, folder: str | os.PathLike | None = None) 
     """
     base = Path(folder) if folder is not None else (session.path or Path("."))
     toml = str(base / SESSION_FILE)
+    _choice(_string(session.format, "format", toml), "format", toml, tuple(FORMATS), "format")
     loop = _choice(_string(session.loop, "loop", toml), "loop", toml, LOOPS, "loop")
     rate = _number(session.control_rate_hz, "control_rate_hz", toml)
     _check_range(rate, "control_rate_hz", toml, ">0")
@@ -715,7 +733,7 @@ def read_session(path: str | os.PathLike) -> Session:
     except tomllib.TOMLDecodeError as exc:
         raise SessionError(f"{where}: TOML syntax error: {exc}") from None
 
-    loop, rate, model_table, run_tables, effect_tables = _parse_top(doc, where)
+    fmt, loop, rate, model_table, run_tables, effect_tables = _parse_top(doc, where)
     model = _parse_model(model_table, loop, where) if model_table is not None else None
     effects = [_parse_effect(t, i, where) for i, t in enumerate(effect_tables)]
     specs = [_parse_run(t, i, where) for i, t in enumerate(run_tables)]
@@ -730,7 +748,7 @@ def read_session(path: str | os.PathLike) -> Session:
     validate("session", doc, where)
     runs = [Run(spec, read_run_csv(folder / spec.file, rate)) for spec in specs]
     return Session(loop=loop, control_rate_hz=rate, runs=runs, model=model,
-                   effects=effects, path=folder)  # fmt: skip
+                   effects=effects, path=folder, format=fmt)  # fmt: skip
 
 
 def _read_text(path: Path, where: str) -> str:
@@ -756,13 +774,14 @@ def _array_of_tables(value: Any, name: str, where: str) -> list[dict]:
     return value
 
 
-def _parse_top(doc: dict, where: str) -> tuple[str, float, dict | None, list, list]:
+def _parse_top(doc: dict, where: str) -> tuple[str, str, float, dict | None, list, list]:
     # A wrong format is checked before anything else: a file of another version
     # or tool has other keys, and "unsupported format" is the useful message.
     if "format" in doc:
         fmt = _string(doc["format"], "format", where)
-        if fmt != FORMAT:
-            raise SessionError(f"{where}: unsupported format {_short(fmt)}, expected {FORMAT!r}")
+        if fmt not in FORMATS:
+            known = " or ".join(repr(f) for f in reversed(FORMATS))
+            raise SessionError(f"{where}: unsupported format {_short(fmt)}, expected {known}")
     for key in doc:
         if key not in _TOP_KEYS:
             raise _unknown_key(where, key, _TOP_KEYS)
@@ -780,7 +799,7 @@ def _parse_top(doc: dict, where: str) -> tuple[str, float, dict | None, list, li
         )
     runs = _array_of_tables(doc["runs"], "runs", where)
     effects = _array_of_tables(doc.get("effects", []), "effects", where)
-    return loop, rate, model, runs, effects
+    return doc["format"], loop, rate, model, runs, effects
 
 
 def _parse_model(table: dict, loop: str, toml: str) -> ModelSpec:
@@ -968,7 +987,7 @@ def _toml_lines(pairs: Iterable[tuple[str, Any]]) -> list[str]:
 
 def _session_toml(session: Session) -> str:
     lines = _toml_lines(
-        [("format", FORMAT), ("loop", session.loop),
+        [("format", session.format), ("loop", session.loop),
          ("control_rate_hz", session.control_rate_hz)]
     )  # fmt: skip
     m = session.model
@@ -1076,7 +1095,7 @@ def session_summary(session: Session) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``{"path", "loop", "control_rate_hz", "model", "runs", "effects"}``;
+        ``{"path", "format", "loop", "control_rate_hz", "model", "runs", "effects"}``;
         ``model`` is a dict of the lumped parameters or None; each run has
         ``file``, ``kind``, ``samples``, ``duration_s`` (t[-1] - t[0], s) and
         the parameters of its kind; each effect is ``{"name", "params"}``.
@@ -1097,6 +1116,7 @@ def session_summary(session: Session) -> dict[str, Any]:
         runs.append(entry)
     return {
         "path": str(session.path) if session.path is not None else None,
+        "format": session.format,
         "loop": session.loop,
         "control_rate_hz": float(session.control_rate_hz),
         "model": dataclasses.asdict(session.model) if session.model is not None else None,

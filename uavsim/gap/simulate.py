@@ -3,7 +3,8 @@
 Every run of a session (np-mrft, mrft, step) is re-played in closed loop on
 :class:`~uavsim.sim.runner.LoopBatch` with the run's own controller
 parameters (``NPMRFT`` / ``MRFT`` / ``PD`` of ``uavsim.control``, the
-normative semantics of ``session.md``) and the model's measurement noise. One
+normative semantics of ``docs/formats/session.md``, in the
+reading of the session's format version) and the model's measurement noise. One
 call simulates many *episodes* at once: each is one run under one candidate
 effect at one parameter value with one noise seed, so that a whole fitting
 grid is one batch.
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.control.pd import PD
-from uavsim.control.relay import NPMRFT
+from uavsim.control.relay import NPMRFT, READING
 from uavsim.errors import UserError
 from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Run, Session
 from uavsim.lumped.params import LumpedParams
@@ -101,9 +102,12 @@ class SimRun:
 
 
 class _Mixed:
-    """Relay episodes and PD episodes of one batch, selected per episode (``e`` (n,) -> ``u`` (n,))."""
+    """Relay episodes and PD episodes of one batch, selected per episode (``e`` (n,) -> ``u`` (n,)).
 
-    def __init__(self, runs: Sequence[Run], plans: Sequence[Episode], rate_hz: float):
+    ``reading`` is the relay reading of the session's format version (``Session.reading``).
+    """
+
+    def __init__(self, runs: Sequence[Run], plans: Sequence[Episode], rate_hz: float, reading: int = READING):
         n = len(plans)
         specs = [runs[p.run].spec for p in plans]
         self.is_step = np.array([s.kind == "step" for s in specs])
@@ -115,8 +119,9 @@ class _Mixed:
         if relay.any():
             beta = np.where(relay, f("beta", -0.5), -0.5)
             h = np.where(relay, f("h", 1.0), 1.0)
-            self.relay = NPMRFT(beta, h, f("tau_obs", 0.0), f("a_n", 0.0), rate_hz, n, bias=f("bias", 0.0))
-            # mrft: an extremum is confirmed one sample after it was set (session.md)
+            self.relay = NPMRFT(beta, h, f("tau_obs", 0.0), f("a_n", 0.0), rate_hz, n, bias=f("bias", 0.0),
+                                reading=reading)
+            # mrft: an extremum is confirmed one sample after it was set (docs/formats/session.md)
             self.relay.n_obs[np.array([s.kind == "mrft" for s in specs])] = 1
         self.pd = None
         if self.is_step.any():
@@ -239,7 +244,7 @@ def simulate(
     fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
     lb = LoopBatch([p] * len(plans), dt=dt, rate_hz=rate, effects=fx, seed=seed, nthread=nthread)
     ref = np.stack([_reference(session.runs[e.run], T, rate) for e in plans])
-    res = lb.run(_Mixed(session.runs, plans, rate), T / rate, reference=ref)
+    res = lb.run(_Mixed(session.runs, plans, rate, session.reading), T / rate, reference=ref)
     out = []
     for i, L in enumerate(lens):
         out.append(SimRun(res.t[:L], res.r[i, :L], res.y[i, :L], res.u[i, :L], bool(res.diverged[i])))

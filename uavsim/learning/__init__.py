@@ -7,7 +7,7 @@ lumped time parameters and the rule gains for K = 1, the cycle amplitude gives K
     from uavsim.learning.train import train_from_recipe
     report = train_from_recipe("training/small.toml")          # writes training/runs/small/
     from uavsim.learning.identify import identify_session
-    identify_session("scenarios/sessions/altitude-npmrft")      # JSON of session.md
+    identify_session("scenarios/sessions/altitude-npmrft")      # JSON of docs/formats/session.md
 
 Modules: ``model`` (network), ``loss`` (J-weighted softmax cross-entropy),
 ``train`` (recipes, checkpoints, resume, early stopping), ``evaluate``

@@ -1,6 +1,6 @@
 """Identification of a flight session with a trained network (DNN-NP-MRFT).
 
-From a session (``uavsim-session/1``) with an ``np-mrft`` (or ``mrft``) run:
+From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run:
 
 1. extract the last steady cycle exactly as the training sets were built
    (``uavsim.data.preprocess.features``: same resampling to 200 Hz, same edges,
@@ -646,7 +646,7 @@ def identify_session(path: str | os.PathLike, model_dir: str | os.PathLike | Non
     Returns
     -------
     dict
-        The JSON of ``uavsim identify --json`` (session.md): ``loop``, ``class``,
+        The JSON of ``uavsim identify --json`` (docs/formats/session.md): ``loop``, ``class``,
         ``params``, ``gains``, plus ``oscillation``, ``run``, ``model_dir``,
         ``had_model``.
     """

@@ -4,12 +4,11 @@ For each loop of the scenario (altitude; lateral_y cascaded over the roll
 loop), through the scenario's sensor chain:
 
 1. hover ``hover_s`` seconds and estimate the measurement noise
-   (``uavsim.noise.estimate``): ``tau_obs`` and ``a_n``;
-2. run the NP-MRFT at ``beta``; if the cycle period ``T0`` it produces makes
-   ``beta_min(tau_obs, T0) > beta``, shorten ``tau_obs`` and run again; if the
-   last cycles are not steady (noise switching the relay, which happens when
-   beta caps ``tau_obs`` below the noise period), run again with ``a_n``
-   1.6 times larger, at most twice;
+   (``uavsim.noise.estimate``): a first run's ``tau_obs`` and ``a_n``;
+2. run the NP-MRFT at ``beta`` and refine its settings from the run
+   (``refine``), twice, as a user does with ``uavsim noise``; if the last
+   cycles are still not steady (noise switching the relay), run again with
+   ``a_n`` 1.6 times larger, at most twice;
 3. save the episode as a flight session and identify it with **one call**,
    :func:`identify` (the trained networks of ``uavsim.learning`` for
    ``method = "dnn"``; the describing-function MRFT rule on the measured
@@ -37,14 +36,14 @@ from typing import Any
 import numpy as np
 
 from uavsim.control.pd import PD
-from uavsim.control.relay import NPMRFT, beta_min
+from uavsim.control.relay import NPMRFT
 from uavsim.errors import UserError
 from uavsim.formats.session import write_session
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects import make_effect
 from uavsim.noise.analysis import cycle_stats
-from uavsim.noise.estimate import estimate_noise, recommend
+from uavsim.noise.estimate import estimate_noise, recommend, refine
 from uavsim.scenario.config import Scenario
 from uavsim.scenario.episode import VisionEpisode, VisionResult
 from uavsim.sim.runner import LoopBatch
@@ -60,6 +59,8 @@ DT = 0.0005
 #: relay re-runs with a larger a_n when the cycle is not steady (noise switching the relay)
 A_N_RETRIES = 2
 A_N_RETRY_FACTOR = 1.6
+#: relay runs refined from the one before (the user's procedure, uavsim bench noise)
+REFINEMENTS = 2
 
 
 def _log(msg: str) -> None:
@@ -169,25 +170,29 @@ def _episode(truth: LumpedParams, scn: Scenario, mode: str, seed: int, forces=()
 
 def _relay_identify(run_ep, loop: str, beta: float, h: float, scn: Scenario, workdir: Path, tag: str,
                     seed: int, lateral: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Hover, noise estimate, NP-MRFT (re-run once if beta_min > beta), session, identification."""
+    """Hover, noise estimate, NP-MRFT (refined twice from its own runs), session, identification."""
     ident_cfg = scn.identification
     hover = run_ep(seed, lambda e: np.zeros_like(e), ident_cfg.hover_s)
     est = estimate_noise(hover.y[0], RATE_HZ)
     tau_obs, a_n = recommend(est, beta)
     settle = min(5.0, 0.3 * ident_cfg.duration_s)
     res = None
-    capped = False
+    refined = 0
     retries: list[str] = []
-    for attempt in range(2 + A_N_RETRIES):
+    for attempt in range(1 + REFINEMENTS + A_N_RETRIES):
         relay = NPMRFT(beta=beta, h=h, tau_obs=tau_obs, a_n=a_n, rate_hz=RATE_HZ, n=1)
         res = run_ep(seed + 1 + attempt, relay, ident_cfg.duration_s)
         if res.diverged[0]:
             raise UserError(f"{loop}: the relay test diverged ({res.reasons.get(0)})")
         T0 = cycle_stats(res.t, res.r[0] - res.y[0], res.u[0], settle=settle)[0]
-        if not capped and math.isfinite(T0) and float(beta_min(tau_obs, T0)) > beta:
-            tau_obs, a_n = recommend(est, beta, T0)
-            capped = True
-            continue
+        if refined < REFINEMENTS:
+            # the user's next run: settings refined from this one (uavsim noise)
+            ref = refine(res.t, res.r[0] - res.y[0], res.u[0], beta=beta, tau_obs=tau_obs, a_n=a_n,
+                         rate_hz=RATE_HZ, settle=settle, hover=est)
+            refined += 1
+            if ref.refined:
+                tau_obs, a_n = ref.tau_obs, ref.a_n
+                continue
         why = _unsteady(res, h, beta) or _faster_than_grid(T0, loop, lateral)
         if why is None or len(retries) >= A_N_RETRIES:
             break

@@ -320,7 +320,8 @@ class LoopBatch:
             e.reset(n, self.rate_hz, rng, drag)
         t = np.arange(T) / self.rate_hz
         if reference is None:
-            ref = lambda k: np.zeros(n)  # noqa: E731
+            zero = np.zeros(n)
+            ref = lambda k: zero  # noqa: E731
         elif callable(reference):
             ref = lambda k: np.broadcast_to(np.asarray(reference(t[k]), dtype=float), (n,))  # noqa: E731
         else:
@@ -339,6 +340,8 @@ class LoopBatch:
             att_ax = 4 if self.loop == "lateral_x" else 3
             tilt_sign = 1.0 if self.loop == "lateral_x" else -1.0
         limit = 1e3
+        bounds = np.full(self.qpos.shape[1], np.finfo(np.float64).max)
+        bounds[:3], bounds[3:5] = limit, 1.2
         for k in range(T):
             y_true = self._measure_true()
             y = y_true
@@ -371,12 +374,16 @@ class LoopBatch:
                         reasons[int(i)] = f"MuJoCo error at t={t[k]:.3f}s: {self.batch.error(int(i))}"
             if RF is not None:
                 RF[:, k] = self.actuator_force
-            bad = ~np.isfinite(self.qpos).all(axis=1) | (np.abs(self.qpos[:, :3]) > limit).any(axis=1)
-            bad |= (np.abs(self.qpos[:, 3:5]) > 1.2).any(axis=1)
-            new = bad & ~diverged
-            for i in np.flatnonzero(new):
-                reasons[int(i)] = f"runaway state at t={t[k]:.3f}s"
-            diverged |= bad
+            # one pass: a position beyond 1e3 or a tilt beyond 1.2 rad, or any non-finite coordinate
+            # (a NaN fails every comparison, an infinity the last column's huge bound)
+            bad = ~(np.abs(self.qpos) <= bounds).all(axis=1)
+            if bad.any():
+                new = bad & ~diverged
+                for i in np.flatnonzero(new):
+                    reasons[int(i)] = f"runaway state at t={t[k]:.3f}s"
+                diverged |= bad
+            else:
+                new = bad
             if new.any():
                 # park diverged episodes so that they cannot poison the batch
                 self.qpos[new] = 0.0

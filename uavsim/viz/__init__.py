@@ -1,6 +1,6 @@
 """Visualization of sessions and simulations with Rerun.
 
-:mod:`uavsim.viz.replay` logs a flight session (format ``uavsim-session/1``),
+:mod:`uavsim.viz.replay` logs a flight session (format ``uavsim-session/2`` or 1),
 a dataset episode (simulated again exactly from the recipe the file records)
 or a scenario run to a Rerun recording: r, y (and the noise-free y_true of
 simulations), e, u over time, the relay switches, the accepted extrema and

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import MRFT, NPMRFT
+from uavsim.control.relay import MRFT, NPMRFT, READING
 from uavsim.errors import UserError
 from uavsim.formats.session import Run, Session
 from uavsim.viz.sources import (
@@ -99,7 +99,7 @@ class RelayReplay:
     n_obs: int = 0
 
 
-def make_relay(run: Run, rate_hz: float) -> NPMRFT:
+def make_relay(run: Run, rate_hz: float, reading: int = READING) -> NPMRFT:
     """Build the relay (n=1) that the session says produced ``run``.
 
     Parameters
@@ -108,17 +108,26 @@ def make_relay(run: Run, rate_hz: float) -> NPMRFT:
         A run of kind ``np-mrft`` or ``mrft``.
     rate_hz : float
         Controller rate of the session, Hz.
+    reading : int
+        The relay reading of the session's format version (``Session.reading``).
     """
     s = run.spec
     if s.kind not in _RELAY_KINDS:
         raise UserError(f"{run.spec.file}: run kind {s.kind!r} is not a relay run")
-    return _relay(s.kind, {"beta": s.beta, "h": s.h, "tau_obs": s.tau_obs, "a_n": s.a_n, "bias": s.bias}, rate_hz)
+    return _relay(s.kind, _params(run, reading), rate_hz)
+
+
+def _params(run: Run, reading: int) -> dict[str, Any]:
+    s = run.spec
+    return {"beta": s.beta, "h": s.h, "tau_obs": s.tau_obs, "a_n": s.a_n, "bias": s.bias, "reading": reading}
 
 
 def _relay(kind: str, p: dict[str, Any], rate_hz: float) -> NPMRFT:
+    reading = int(p.get("reading", READING))
     if kind == "mrft":
-        return MRFT(p["beta"], p["h"], rate_hz, 1, bias=p.get("bias") or 0.0)
-    return NPMRFT(p["beta"], p["h"], p["tau_obs"] or 0.0, p["a_n"] or 0.0, rate_hz, 1, bias=p.get("bias") or 0.0)
+        return MRFT(p["beta"], p["h"], rate_hz, 1, bias=p.get("bias") or 0.0, reading=reading)
+    return NPMRFT(p["beta"], p["h"], p["tau_obs"] or 0.0, p["a_n"] or 0.0, rate_hz, 1, bias=p.get("bias") or 0.0,
+                  reading=reading)
 
 
 def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz: float) -> RelayReplay:
@@ -131,7 +140,9 @@ def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz:
     kind : str
         ``np-mrft`` or ``mrft``.
     params : dict
-        ``beta``, ``h`` (command units), ``tau_obs`` (s), ``a_n`` (output units), ``bias`` (command units).
+        ``beta``, ``h`` (command units), ``tau_obs`` (s), ``a_n`` (output units), ``bias`` (command units),
+        optionally ``reading`` (the relay reading, default the current one) and ``retunes``, a list of
+        ``(sample, tau_obs, a_n)`` settings changes (a dataset episode's refined runs).
     rate_hz : float
         Controller rate, Hz.
 
@@ -140,6 +151,7 @@ def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz:
     RelayReplay
     """
     relay = _relay(kind, params, rate_hz)
+    retunes = {int(k): (tau, a_n) for k, tau, a_n in params.get("retunes") or ()}
     e = np.asarray(e, dtype=np.float64)
     n = e.size
     u = np.empty(n)
@@ -147,6 +159,8 @@ def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz:
     ext_idx: list[int] = []
     ext_e: list[float] = []
     for k in range(n):
+        if k in retunes:
+            relay.retune(tau_obs=retunes[k][0], a_n=retunes[k][1])
         prev_e, prev_k = float(relay.e_ext[0]), int(relay.k_ext[0])
         u[k] = relay(e[k : k + 1])[0]
         if relay.switched[0]:
@@ -165,12 +179,10 @@ def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz:
     )
 
 
-def recompute_relay(run: Run, rate_hz: float) -> RelayReplay:
-    """:func:`recompute_relay_e` on a session relay run (its logged ``r - y``)."""
-    s = run.spec
-    make_relay(run, rate_hz)  # refuses non-relay runs
-    params = {"beta": s.beta, "h": s.h, "tau_obs": s.tau_obs, "a_n": s.a_n, "bias": s.bias}
-    return recompute_relay_e(run.data.r - run.data.y, s.kind, params, rate_hz)
+def recompute_relay(run: Run, rate_hz: float, reading: int = READING) -> RelayReplay:
+    """:func:`recompute_relay_e` on a session relay run (its logged ``r - y``), in the session's ``reading``."""
+    make_relay(run, rate_hz, reading)  # refuses non-relay runs
+    return recompute_relay_e(run.data.r - run.data.y, run.spec.kind, _params(run, reading), rate_hz)
 
 
 def sign_changes(u: np.ndarray, offset: float = 0.0) -> np.ndarray:

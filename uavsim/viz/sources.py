@@ -2,7 +2,7 @@
 
 Three sources, told apart by :func:`detect_source`:
 
-* **session** (a folder with ``session.toml``, format ``uavsim-session/1``):
+* **session** (a folder with ``session.toml``, format ``uavsim-session/2`` or 1):
   every run, r, y, u as logged. A session whose ``[model]`` is noise-free and
   has no effects (what ``uavsim sim relay --session`` writes) is simulated
   again with ``LoopBatch(record_state=True)`` at the physics steps ``uavsim``
@@ -130,10 +130,11 @@ def detect_source(path: str | Path) -> str:
 
 # -- sessions ---------------------------------------------------------------------------------------
 
-def _relay_of(spec: Any) -> dict[str, Any] | None:
+def _relay_of(spec: Any, reading: int) -> dict[str, Any] | None:
     if spec.kind not in ("np-mrft", "mrft"):
         return None
-    return {"beta": spec.beta, "h": spec.h, "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias": spec.bias}
+    return {"beta": spec.beta, "h": spec.h, "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias": spec.bias,
+            "reading": reading}
 
 
 def _resimulate_session_run(session: Any, rr: ReplayRun) -> ReplayRun:
@@ -166,8 +167,9 @@ def _resimulate_session_run(session: Any, rr: ReplayRun) -> ReplayRun:
             lb = LoopBatch([params], dt=dt, rate_hz=rr.rate_hz, y0=rr.y[:1], record_state=True)
         except UserError:
             continue
-        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"]) if rr.kind == "mrft" else
-                 NPMRFT(s["beta"], s["h"], s["tau_obs"], s["a_n"], rr.rate_hz, 1, bias=s["bias"]))
+        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"], reading=s["reading"]) if rr.kind == "mrft"
+                 else NPMRFT(s["beta"], s["h"], s["tau_obs"], s["a_n"], rr.rate_hz, 1, bias=s["bias"],
+                             reading=s["reading"]))
         res = lb.run(relay, rr.t.size / rr.rate_hz)
         if res.diverged[0]:
             continue
@@ -218,7 +220,7 @@ def session_runs(path: str | Path, run: str | None = None, *, resimulate: bool =
         stems.append(stem)
         d = r.data
         rr = ReplayRun(stem=stem, label=r.spec.file, kind=r.spec.kind, t=d.t, r=d.r, y=d.y, u=d.u,
-                       rate_hz=session.control_rate_hz, relay=_relay_of(r.spec), info={"file": r.spec.file})
+                       rate_hz=session.control_rate_hz, relay=_relay_of(r.spec, session.reading), info={"file": r.spec.file})
         out.append(_resimulate_session_run(session, rr) if resimulate else rr)
     return out, {"session": str(session.path), "loop": session.loop, "control_rate_hz": session.control_rate_hz}
 
@@ -249,9 +251,15 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
     why : str
         What was done, or why not.
     """
-    from uavsim.control.relay import NPMRFT
+    from uavsim.control.relay import READING
     from uavsim.data import preprocess
-    from uavsim.data.generate import _effects, load_family_grid, make_plan
+    from uavsim.data.generate import (
+        RefiningRelay,
+        _effects,
+        episode_controller,
+        load_family_grid,
+        make_plan,
+    )
     from uavsim.data.recipe import parse_recipe
     from uavsim.sim.runner import LoopBatch
 
@@ -276,8 +284,12 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
     ids = plan.chunks[ci]
     checks = {"sim_seed": (plan.sim_seeds[ci], ds.sim_seed[row]), "K": (plan.K[e], ds.K[row]),
               "bias": (plan.bias[e], ds.bias[row]), "y0": (plan.y0[e], ds.y0[row]),
-              "tau_obs": (plan.tau_obs[e], ds.tau_obs[row]), "a_n": (plan.a_n[e], ds.a_n[row]),
               "label": (plan.labels[e], ds.labels[row])}
+    if plan.recipe.test.settings == "fixed":
+        checks.update({"tau_obs": (plan.tau_obs[e], ds.tau_obs[row]), "a_n": (plan.a_n[e], ds.a_n[row])})
+    if int(a.get("relay_reading", 1)) != READING:
+        return None, f"the file was made with relay reading {int(a.get('relay_reading', 1))}, this version runs " \
+                     f"reading {READING}"
     for k, v in ds.effects.items():
         if k in plan.effect_params:
             checks[f"effects/{k}"] = (plan.effect_params[k][e], v[row])
@@ -290,16 +302,27 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
     params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[i]])), K=float(plan.K[i])) for i in ids]
     lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples),
                    seed=int(plan.sim_seeds[ci]), y0=plan.y0[ids], record_state=True)
-    ctrl = NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], r.episodes.rate_hz, len(ids),
-                  bias=plan.bias[ids])
+    ctrl = episode_controller(plan, ids, ci, int(plan.sim_seeds[ci]))
+    relay_first = ctrl.history[0] if isinstance(ctrl, RefiningRelay) else (ctrl.tau_obs.copy(), ctrl.a_n.copy())
     res = lb.run(ctrl, dur)
     j = int(np.flatnonzero(ids == e)[0])
+    relay = ctrl.relay if isinstance(ctrl, RefiningRelay) else ctrl
+    final = {"tau_obs": (relay.tau_obs[j], ds.tau_obs[row]), "a_n": (relay.a_n[j], ds.a_n[row])}
+    bad = [k for k, (p, f) in final.items() if not np.isclose(float(p), float(f), rtol=1e-12, atol=0.0)]
+    if bad:
+        return None, f"the re-simulated episode's relay settings differ from the file's ({', '.join(bad)})"
     if res.diverged[j]:
         return None, f"the re-simulated episode diverged ({res.reasons.get(j)})"
     X, _, _, _ = preprocess.features_batch(np.nan_to_num(res.y[j:j + 1]), res.u[j:j + 1], r.episodes.rate_hz,
                                            np.full(1, r.test.h), plan.bias[[e]], plan.L, cycles=r.preprocess.cycles)
+    # the settings' changes within the episode (recommended settings: the refined runs)
+    retunes = []
+    if isinstance(ctrl, RefiningRelay):
+        retunes = [(int(k), float(tau[j]), float(an[j]))
+                   for k, (tau, an) in zip(sorted(ctrl.bounds), ctrl.history[1:], strict=True)]
     return ({"y": res.y[j], "u": res.u[j], "y_true": res.y_true[j], "qpos": res.qpos[j],
-             "rotor_force": res.rotor_force[j], "x": X[0], "chunk": ci, "chunk_size": len(ids)},
+             "rotor_force": res.rotor_force[j], "x": X[0], "chunk": ci, "chunk_size": len(ids),
+             "first": (float(relay_first[0][j]), float(relay_first[1][j])), "retunes": retunes},
             f"simulated again: chunk {ci} ({len(ids)} episodes, seed {int(plan.sim_seeds[ci])}, {dur:g} s)")
 
 
@@ -395,7 +418,11 @@ def dataset_runs(path: str | Path, cls: int = 0, episode: int = 0, *, resimulate
     T = y.size
     t = np.arange(T) / rate
     relay = {"beta": float(a["beta"]), "h": h, "tau_obs": float(ds.tau_obs[row]), "a_n": float(ds.a_n[row]),
-             "bias": float(ds.bias[row])}
+             "bias": float(ds.bias[row]), "reading": int(a.get("relay_reading", 1))}
+    if sim is not None and sim["retunes"]:
+        # the episode ran its first settings, then each refined run's (see uavsim.data.generate)
+        relay["tau_obs"], relay["a_n"] = sim["first"]
+        relay["retunes"] = sim["retunes"]
     run = ReplayRun(stem=stem, label=label, kind="np-mrft", t=t, r=np.zeros(T), y=y, u=u, rate_hz=rate,
                     relay=relay if (sim is not None or raw is not None) else None,
                     y_true=sim["y_true"] if sim is not None else None,
@@ -459,6 +486,7 @@ def scenario_runs(path: str | Path, run: str | None = None) -> tuple[list[Replay
         if kind in ("np-mrft", "mrft"):
             relay = {k: ctrl.get(k) for k in ("beta", "h", "tau_obs", "a_n", "bias")}
             relay["bias"] = relay["bias"] or 0.0
+            relay["reading"] = int(ctrl.get("reading", 1))  # runs recorded before reading 2 ran reading 1
         signals = {k: arr[k] for k in ("y_cam", "y_kf", "target", "innovation", "force", "schedule") if k in arr}
         desc = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in ctrl.items())
         notes = [("INFO", f"{name}: {meta.get('scenario')} scenario episode, {ep.get('loop')} loop, {desc}")]

@@ -1,7 +1,7 @@
 """Effects: named, composable, parameterized imperfections of a loop.
 
 Names and parameters follow the effect vocabulary of
-``shared/formats/session.md`` (delay, lag, gain, saturation, dead_zone,
+``docs/formats/session.md`` (delay, lag, gain, saturation, dead_zone,
 rate_limit, bias, quantization, sample_hold, lowpass, noise), plus ``wind``
 and ``pull`` (external forces). One effect is one file; importing this
 package registers them all.
