@@ -32,8 +32,27 @@ class Test(Table):
 
     beta: Beta | None = Field(default=None, description="default: the grid's beta")
     h: Positive = Field(default=1.0, description="relay amplitude, command units")
-    tau_obs: NonNegative = Field(default=0.03, description="NP-MRFT observation time, s")
-    a_n: NonNegative = Field(default=1.0, description="NP-MRFT a_n / the episode's noise amplitude")
+    settings: Literal["recommended", "fixed"] | None = Field(
+        default=None, description="NP-MRFT tau_obs, a_n as a user gets them (recommended: hover estimate, then "
+                                  "refined runs), or fixed; default recommended, fixed when tau_obs or a_n is given")
+    refinements: Annotated[int, Field(ge=0, le=5)] | None = Field(
+        default=None, description="recommended only: relay runs refined from the one before (default 2)")
+    refine_cycles: Annotated[float, Field(gt=2, allow_inf_nan=False)] | None = Field(
+        default=None, description="recommended only: length of each refined run, cycles (default 4)")
+    tau_obs: NonNegative | None = Field(default=None, description="fixed only: NP-MRFT observation time, s (0.03)")
+    a_n: NonNegative | None = Field(default=None,
+                                    description="fixed only: NP-MRFT a_n / the episode's noise amplitude (1.0)")
+
+    @model_validator(mode="after")
+    def _settings(self):
+        fixed = [k for k in ("tau_obs", "a_n") if getattr(self, k) is not None]
+        refine = [k for k in ("refinements", "refine_cycles") if getattr(self, k) is not None]
+        settings = self.settings or ("fixed" if fixed else "recommended")
+        if settings == "recommended" and fixed:
+            raise ValueError(f"{fixed[0]} only goes with settings = \"fixed\"")
+        if settings == "fixed" and refine:
+            raise ValueError(f"{refine[0]} only goes with settings = \"recommended\"")
+        return self
 
 
 class Episodes(Table):
