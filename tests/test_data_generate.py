@@ -16,6 +16,7 @@ from uavsim.data.h5 import open_dataset
 from uavsim.data.recipe import load_recipe, parse_recipe
 from uavsim.errors import UserError
 from uavsim.tuning.grid import load_grid
+from uavsim.tuning.table import load_table
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "datasets" / "small.toml"
@@ -50,7 +51,9 @@ def test_small_layout(small):
     ci = np.asarray(r.classes)
     np.testing.assert_allclose(ds.class_table["period"], g.period[ci])
     np.testing.assert_allclose(ds.class_table["kp"], g.kp[ci])
-    np.testing.assert_allclose(ds.J, g.J[np.ix_(ci, ci)])
+    tab = load_table("altitude")
+    np.testing.assert_allclose(ds.J, tab.J_robust[np.ix_(ci, ci)])
+    np.testing.assert_allclose(ds.class_table["table_robust_kp"], tab.robust_kp[ci])
     assert ds.n_classes == 6 and set(np.unique(ds.labels)) <= set(range(6))
     # the draws are the recipe's: gains in the range, bias within +-0.5 h, levels <= 20%
     assert ds.K.min() >= 0.5 and ds.K.max() <= 2.0 and np.abs(ds.bias).max() <= 0.5

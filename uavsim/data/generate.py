@@ -605,6 +605,24 @@ def git_commit() -> str:
     return out.stdout.strip() if out.returncode == 0 else "unknown"
 
 
+def class_table_gains(family: str, rate_hz: float, att_class: int | None) -> dict[str, np.ndarray]:
+    """The grid's table of ISE-optimal PDs at the data's control rate, as class-table columns.
+
+    ``table_kp``, ``table_kd`` (the class's own optimum), ``table_robust_kp``, ``table_robust_kd`` (the
+    answer identification gives), ``table_filter_hz``, ``table_omega`` and ``table_gain_at_omega`` (the
+    gain estimate's reference), each (n,) for K = 1, and ``J``: the table's robust answers' relative
+    sensitivity (n, n), which the network's loss weighs (``uavsim.tuning.table``).
+    """
+    from uavsim.tuning.table import load_table
+
+    t = load_table(family, rate_hz)
+    if att_class is not None:
+        t = t.lateral(att_class)
+    return {"table_kp": t.kp, "table_kd": t.kd, "table_robust_kp": t.robust_kp, "table_robust_kd": t.robust_kd,
+            "table_filter_hz": t.derivative_filter_hz, "table_omega": t.omega,
+            "table_gain_at_omega": t.gain_at_omega, "J": np.asarray(t.J_robust, dtype=np.float64)}
+
+
 def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict[str, str] | None = None
               ) -> dict[str, Any]:
     n = plan.n
@@ -644,7 +662,9 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dic
     # the reference episodes' cycle (K = 1, h = 1 scale): NaN where it failed
     classes["period_sim"] = period[nt:].copy()
     classes["amplitude_sim"] = amp[nt:] / r.test.h
-    J = np.asarray(g.J, float)[np.ix_(ci, ci)]
+    tab = class_table_gains(fam, r.episodes.rate_hz, plan.att_class)
+    classes.update({k: v[ci] for k, v in tab.items() if k != "J"})
+    J = tab["J"][np.ix_(ci, ci)]
     fixed = r.test.settings == "fixed"
     episodes = {"inputs": X[keep], "labels": plan.labels[keep], "K": plan.K[keep], "bias": plan.bias[keep],
                 "noise_kind": plan.noise_kind[keep], "noise_level": plan.noise_level[keep], "period": period[keep],
@@ -661,6 +681,7 @@ def _assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dic
              "noise_kinds": list(r.noise.kinds), "recipe": r.text, "seed": r.seed,
              "versions": json.dumps(run_versions or versions(), sort_keys=True), "git_commit": git_commit(), "n_episodes": nt,
              "n_diverged": n_div, "n_rejected": int(nt - n_div - len(keep)),
+             "J_source": f"table robust answers at {r.episodes.rate_hz:g} Hz (J of table_robust_kp/kd)",
              "simulated_s": float(sum(len(c) * d for c, d in zip(plan.chunks, plan.durations, strict=True)))}
     if plan.att_class is not None:
         attrs["att_class"] = int(plan.att_class)
