@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 from mujoco import batch as mjbatch
 
+from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects.base import Effect
@@ -200,7 +201,7 @@ class LoopBatch:
 
     def _make_batch(self) -> None:
         m, n = self.map, self.n
-        b = mjbatch.Batch(self.model, n, self.nthread)
+        b = mjbatch.Batch(self.model, n, self.nthread or available_cpus())  # 0 would be the host's count
         b.expand("dof_damping")[:] = m.damping
         b.expand("actuator_dynprm")[:, :, 0] = m.T_prop[:, None]
         # MuJoCo's history cannot interpolate inside the newest step (a delay in
