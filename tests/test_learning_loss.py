@@ -6,6 +6,7 @@ import torch
 
 from uavsim.learning.loss import (
     JWeightedLoss,
+    expected_log_j_loss,
     jweighted_cross_entropy,
     jweighted_cross_entropy_reference,
 )
@@ -114,3 +115,54 @@ def test_network_layout_is_papers():
     lin = [m for m in net.layers if isinstance(m, torch.nn.Linear)]
     assert [(m.in_features, m.out_features) for m in lin] == [(800, 3000), (3000, 1000), (1000, 208)]
     assert all(m.p == 0.4 for m in net.layers if isinstance(m, torch.nn.Dropout))
+
+
+def _numpy_expected(a, labels, J, w):
+    """Independent numpy value of mean_b [-log p_l + w sum_i p_i log J_il]."""
+    total = 0.0
+    for b, lab in enumerate(labels):
+        z = a[b] - a[b].max()
+        p = np.exp(z) / np.exp(z).sum()
+        total += -np.log(p[lab]) + w * (p * np.log(J[:, lab])).sum()
+    return total / len(labels)
+
+
+def test_expected_matches_numpy_and_autograd():
+    a, labels, J = _case(seed=3)
+    got = float(expected_log_j_loss(a, labels, J, 2.5))
+    assert got == pytest.approx(_numpy_expected(a.numpy(), labels.numpy(), J.numpy(), 2.5), rel=1e-12)
+    a.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: expected_log_j_loss(x, labels, J, 2.5), (a,), eps=1e-6, atol=1e-8)
+
+
+def test_expected_is_shift_invariant_and_ce_at_identity():
+    a, labels, J = _case(seed=4)
+    assert float(expected_log_j_loss(a - 40.0, labels, J, 5.0)) == pytest.approx(
+        float(expected_log_j_loss(a, labels, J, 5.0)), rel=1e-12)
+    ones = torch.ones_like(J)
+    assert float(expected_log_j_loss(a, labels, ones, 5.0)) == pytest.approx(
+        float(torch.nn.functional.cross_entropy(a, labels)), rel=1e-12)
+
+
+def test_paper_loss_has_a_degenerate_minimum_the_expected_loss_has_not():
+    """With J > 1 off the diagonal, sinking every activation lowers the paper's loss without separating
+    classes (the reason it is not the default); the expected loss does not move."""
+    a, labels, J = _case(B=6, n=5, seed=5)
+    J = J + 0.01
+    J.fill_diagonal_(1.0)
+    paper = [float(jweighted_cross_entropy(a - s, labels, J)) for s in (0.0, 10.0, 100.0)]
+    assert paper[0] > paper[1] > paper[2] and paper[2] < 1e-3
+    exp = [float(expected_log_j_loss(a - s, labels, J, 5.0)) for s in (0.0, 10.0, 100.0)]
+    assert exp == pytest.approx([exp[0]] * 3, rel=1e-9)
+
+
+def test_expected_costly_confusion_costs_more_and_kinds_checked():
+    a = torch.tensor([[1.0, 0.9, -5.0]])
+    labels = torch.tensor([0])
+    cheap = torch.tensor([[1.0, 1.0, 1.0], [1.1, 1.0, 1.0], [50.0, 1.0, 1.0]])
+    costly = torch.tensor([[1.0, 1.0, 1.0], [3.0, 1.0, 1.0], [50.0, 1.0, 1.0]])
+    assert float(JWeightedLoss(costly)(a, labels)) > float(JWeightedLoss(cheap)(a, labels))
+    with pytest.raises(ValueError, match="loss kind"):
+        JWeightedLoss(cheap, kind="focal")
+    with pytest.raises(ValueError, match="weight"):
+        JWeightedLoss(cheap, weight=-1.0)

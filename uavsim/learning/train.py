@@ -3,7 +3,7 @@
 A recipe (``training/*.toml``) names the dataset written by ``uavsim generate``
 (``uavsim-dataset/1`` HDF5, see ``uavsim.data.h5``), the network shape and the
 optimizer. Training follows the authors' code (NOTES.md section 2): Adam, lr
-multiplied by ``lr_decay`` every ``lr_step_epochs``, the J-weighted softmax loss
+multiplied by ``lr_decay`` every ``lr_step_epochs``, a J-weighted loss
 (``uavsim.learning.loss``). A seeded ``val_fraction`` of the set is held out for
 early stopping on the validation **mean J** (the closed-loop cost of the
 predicted class for the true one), not on accuracy: two wrong classes are not
@@ -40,9 +40,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
 from uavsim.learning.export import export_model
-from uavsim.learning.loss import J_CLIP, JWeightedLoss
+from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
 
 __all__ = [
@@ -111,6 +112,11 @@ class TrainRecipe:
         Improvement (in mean J) that counts.
     max_minutes : float
         Wall-clock budget (0: none); training stops after the epoch that crosses it.
+    loss_kind : str
+        ``[loss] kind``: ``expected`` (cross-entropy plus the expected log J) or
+        ``paper`` (the paper's J-weighted softmax); ``uavsim.learning.loss``.
+    loss_weight : float
+        ``[loss] weight``: the expected log J's weight.
     source : str
         Path of the TOML file, for messages.
     """
@@ -137,6 +143,8 @@ class TrainRecipe:
     patience: int = 10
     min_delta: float = 0.0
     max_minutes: float = 0.0
+    loss_kind: str = "expected"
+    loss_weight: float = 5.0
     source: str = ""
 
     def fingerprint(self) -> str:
@@ -152,7 +160,10 @@ _SECTIONS = {
     "net": ("hidden", "dropout", "period_features"),
     "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay"),
     "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
+    "loss": ("kind", "weight"),
 }
+#: keys whose field carries their section's name (``[loss] kind`` is ``loss_kind``)
+_PREFIXED = ("loss",)
 
 
 def load_train_recipe(path: str | os.PathLike, overrides: dict[str, Any] | None = None) -> TrainRecipe:
@@ -174,7 +185,7 @@ def load_train_recipe(path: str | os.PathLike, overrides: dict[str, Any] | None 
             for k, v in value.items():
                 if k not in _SECTIONS[key]:
                     raise UserError(f"{p}: unknown key {k!r} in [{key}] (known: {', '.join(_SECTIONS[key])})")
-                flat[k] = v
+                flat[f"{key}_{k}" if key in _PREFIXED else k] = v
         elif key in _SECTIONS[""]:
             flat[key] = value
         else:
@@ -212,7 +223,8 @@ def _check_recipe(r: TrainRecipe) -> None:
         ("val_fraction", 0 < r.val_fraction < 1), ("patience", r.patience >= 1), ("max_minutes", r.max_minutes >= 0),
         ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
         ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0),
-        ("period_features", r.period_features >= 0),
+        ("period_features", r.period_features >= 0), ("loss_kind", r.loss_kind in LOSS_KINDS),
+        ("loss_weight", r.loss_weight >= 0),
     ]
     for name, ok in checks:
         if not ok:
@@ -456,8 +468,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         raise UserError(f"{recipe.dataset}: only {N} samples for {data.n_classes} classes")
     seed = int(recipe.seed)
     torch.manual_seed(seed)
-    if recipe.threads:
-        torch.set_num_threads(recipe.threads)
+    # 0: the CPUs this process may use (torch's own default counts the host's)
+    torch.set_num_threads(recipe.threads or available_cpus())
     device = _device(recipe.device)
     tr_idx, va_idx = _split(data.labels, recipe.val_fraction, seed)
     Xtr = torch.from_numpy(data.X[tr_idx])
@@ -469,7 +481,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout,
                     period_features=recipe.period_features)
     net = IdentNet(cfg).to(device)
-    loss_fn = JWeightedLoss(data.J).to(device)
+    loss_fn = JWeightedLoss(data.J, kind=recipe.loss_kind, weight=recipe.loss_weight).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=recipe.lr_step_epochs, gamma=recipe.lr_decay)
     gen = torch.Generator().manual_seed(seed)

@@ -42,6 +42,14 @@ class EarlyStopping(Table):
     max_minutes: NonNegative | None = Field(default=None, description="wall-clock budget (0: none), default 0")
 
 
+class Loss(Table):
+    """What a misclassification costs (``uavsim.learning.loss``)."""
+
+    kind: Literal["expected", "paper"] | None = Field(
+        default=None, description="expected (cross-entropy + weight x expected log J) or paper; default expected")
+    weight: NonNegative | None = Field(default=None, description="the expected log J's weight, default 5")
+
+
 class TrainingRecipe(Table):
     """A training recipe: which dataset, which network, how to optimize, when to stop."""
 
@@ -58,3 +66,4 @@ class TrainingRecipe(Table):
     net: Net = Field(default_factory=Net)
     optim: Optim = Field(default_factory=Optim)
     early_stopping: EarlyStopping = Field(default_factory=EarlyStopping)
+    loss: Loss = Field(default_factory=Loss)
