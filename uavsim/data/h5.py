@@ -1,8 +1,7 @@
 """Training-set files, format ``uavsim-dataset/1`` (HDF5), written and validated.
 
 One file holds the network inputs of every kept episode of a recipe, their
-labels and everything needed to interpret or regenerate them (README,
-"Dataset files", is the normative description):
+labels and everything needed to interpret or regenerate them:
 
 * datasets, one row per kept episode (N rows): ``inputs`` (N, C, L) float32
   (chunked, gzip), ``labels`` (N,) int32, ``K`` (N,) true gain, ``bias`` (N,)
