@@ -37,7 +37,6 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
-import datetime as _dt
 import difflib
 import math
 import os
@@ -52,6 +51,8 @@ from typing import Any
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.errors import short_repr as _short
+from uavsim.errors import type_name as _type_name
 
 __all__ = [
     "CSV_HEADER",
@@ -323,29 +324,6 @@ class Session:
 
 # ---------------------------------------------------------------------------
 # Small checking helpers
-
-
-def _short(value: Any, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _type_name(value: Any) -> str:
-    if isinstance(value, bool):
-        return "boolean"
-    if isinstance(value, int):
-        return "integer"
-    if isinstance(value, float):
-        return "float"
-    if isinstance(value, str):
-        return "string"
-    if isinstance(value, list):
-        return "array"
-    if isinstance(value, dict):
-        return "table"
-    if isinstance(value, _dt.date | _dt.time):
-        return "date/time"
-    return type(value).__name__
 
 
 def _fmt(x: float) -> str:

@@ -11,27 +11,12 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.errors import UserError
+from uavsim.logs.errors import LogError, hint
 
 __all__ = ["FORMATS", "PRESETS", "LogError", "hint", "Preset", "FieldSpec", "detect_format", "parse_field", "read_series",
            "sample_on_grid", "detect_relay", "import_log"]
 
 FORMATS = ("ulog", "dataflash", "rosbag")
-
-
-def hint(name: str, known) -> str:
-    """``did you mean 'x'? `` for the known name closest to ``name``, or ''."""
-    import difflib
-
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    return f"did you mean {close[0]!r}? " if close else ""
-
-
-class LogError(UserError):
-    """A log that cannot become a session; one line naming the log and the problem."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message.replace("\r", "\\r").replace("\n", "\\n"))
 
 
 @dataclass(frozen=True)

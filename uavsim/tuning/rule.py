@@ -40,7 +40,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import _p_args, check_beta, freq_response_batch, mrft_prediction_batch
+from uavsim.lumped.frequency import (
+    batch_args,
+    check_beta,
+    freq_response_batch,
+    mrft_prediction_batch,
+)
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 from uavsim.lumped.params import LumpedParams
 
@@ -157,7 +162,7 @@ class TuningRule:
     def gains(self, p: LumpedParams) -> Gains:
         """Rule gains for one process (for its gain K)."""
         p.check()
-        g = self.gains_batch(p.family, **_p_args(p))
+        g = self.gains_batch(p.family, **batch_args(p))
         c1, c3 = self.constants
         return Gains(
             kp=float(g["kp"][0]),
