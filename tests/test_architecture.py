@@ -27,8 +27,6 @@ KNOWN_PRIVATE = {
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_box_sample"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_log_box"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_proc_params"),
-    ("uavsim.gap.hidden", "uavsim.gap.simulate", "_Mixed"),
-    ("uavsim.gap.hidden", "uavsim.gap.simulate", "_reference"),
     ("uavsim.viz.sources", "uavsim.data.generate", "_effects"),
 }
 

@@ -53,6 +53,7 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.errors import short_repr as _short
 from uavsim.errors import type_name as _type_name
+from uavsim.model.effects.vocabulary import EFFECT_PARAMS, PARAM_RANGES
 
 __all__ = [
     "CSV_HEADER",
@@ -94,37 +95,10 @@ LATERAL_LOOPS = ("lateral_x", "lateral_y")
 RUN_KINDS = ("np-mrft", "mrft", "step")
 CSV_HEADER = ("t", "r", "y", "u")
 
-# The effect vocabulary of the spec, in its table order: name -> parameter names.
-EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
-    "none": (),
-    "delay": ("delay",),
-    "lag": ("T",),
-    "gain": ("factor",),
-    "saturation": ("limit",),
-    "dead_zone": ("width",),
-    "rate_limit": ("rate",),
-    "bias": ("offset",),
-    "quantization": ("step",),
-    "sample_hold": ("rate_hz",),
-    "lowpass": ("cutoff_hz",),
-    "noise": ("std",),
-}
-
-# Allowed range of each effect parameter (the names are unique across effects):
-# ">0" strictly positive, ">=0" non-negative, "any" any finite value.
-_EFFECT_RANGES: dict[str, str] = {
-    "delay": ">=0",
-    "T": ">0",
-    "factor": ">0",
-    "limit": ">0",
-    "width": ">=0",
-    "rate": ">0",
-    "offset": "any",
-    "step": ">0",
-    "rate_hz": ">0",
-    "cutoff_hz": ">0",
-    "std": ">=0",
-}
+# The effect vocabulary of the spec, in its table order: name -> parameter names, and
+# each parameter's allowed range (PARAM_RANGES: ">0", ">=0", "any"; the names are unique
+# across effects). Both are live views of the effects' own session terms
+# (uavsim.model.effects.vocabulary), so a new vocabulary effect is one new effect file.
 
 # Per run kind: (required parameter keys, optional parameter keys).
 RUN_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -520,7 +494,7 @@ def validate_effect(effect: EffectSpec, where: str) -> None:
         if key not in effect.params:
             raise SessionError(f"{where}: missing key {key!r} (parameter of a {name} effect)")
         x = _number(effect.params[key], key, where)
-        _check_range(x, key, where, _EFFECT_RANGES[key])
+        _check_range(x, key, where, PARAM_RANGES[key])
 
 
 def _effect_key_error(where: str, key: str, name: str) -> SessionError:
@@ -798,7 +772,7 @@ def _parse_effect(table: dict, i: int, toml: str) -> EffectSpec:
     where = f"{toml}: [[effects]] #{i + 1}"
     if "name" not in table:
         for key in table:
-            if key not in _EFFECT_RANGES:
+            if key not in PARAM_RANGES:
                 raise _unknown_key(where, key, ("name",))
         raise SessionError(f"{where}: missing key 'name'")
     name = _string(table["name"], "name", where)
