@@ -16,18 +16,12 @@ import uavsim
 
 ROOT = Path(uavsim.__file__).parent
 
-#: circles that need ``uavsim/lumped/lateral.py``, which is being reworked with the lateral grid: the
-#: lateral response is built on the attitude loop's (``freq_response_batch``) and the rule's filter ratio
-#: lives in ``lateral.py``; they go with the ``tuning/grid.py`` split
-KNOWN_CYCLES = [{"uavsim.lumped.frequency", "uavsim.lumped.lateral", "uavsim.tuning.rule"}]
-#: private names of ``tuning/grid.py`` and ``lumped/frequency.py`` used elsewhere, for the same reason
+#: private names of ``tuning/grid.py`` used by its report; they go with the ``tuning/grid.py`` split
 KNOWN_PRIVATE = {
-    ("uavsim.lumped.lateral", "uavsim.lumped.frequency", "_col"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_AXES"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_box_sample"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_log_box"),
     ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_proc_params"),
-    ("uavsim.viz.sources", "uavsim.data.generate", "_effects"),
 }
 
 
@@ -101,13 +95,13 @@ def test_the_checks_see_circles_and_private_names():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
     graph, private = _imports(_modules())
     assert "uavsim.sim.runner" in graph["uavsim.data.generate"]
-    assert ("uavsim.lumped.lateral", "uavsim.lumped.frequency", "_col") in private
+    assert ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_AXES") in private
 
 
 def test_no_import_circles():
     graph, _ = _imports(_modules())
     cycles = sorted(_cycles(graph), key=sorted)
-    assert cycles == KNOWN_CYCLES, f"import circles between modules: {[sorted(c) for c in cycles]}"
+    assert cycles == [], f"import circles between modules: {[sorted(c) for c in cycles]}"
 
 
 def test_no_private_names_imported_from_other_modules():

@@ -34,7 +34,13 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import batch_args, check_beta, freq_response_batch, mrft_prediction
+from uavsim.lumped.frequency import (
+    attitude_filter,
+    batch_args,
+    check_beta,
+    freq_response_batch,
+    mrft_prediction,
+)
 from uavsim.lumped.params import LumpedParams
 
 __all__ = [
@@ -167,8 +173,6 @@ def _make_batch(family: str, dt: float, params: dict):
     if family == "lateral":
         p = dict(params)
         if p.get("att_N") is None:
-            from uavsim.lumped.lateral import attitude_filter
-
             p["att_N"] = attitude_filter(p["T_prop"], p["T1"], p["tau_in"])
         return _LateralBatch(p["K"], p["T_prop"], p["T1"], p["tau"], p["T2"], p["tau_in"], p["att_kp"], p["att_kd"], p["att_N"], dt)
     return _InnerBatch(params["K"], params["T_prop"], params["T1"], params["tau"], dt)

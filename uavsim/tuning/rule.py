@@ -40,7 +40,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import (
+from uavsim.lumped.frequency import (  # DEFAULT_BETA: MRFT parameter of the flight tests
+    DEFAULT_BETA,
     batch_args,
     check_beta,
     freq_response_batch,
@@ -51,8 +52,6 @@ from uavsim.lumped.params import LumpedParams
 
 __all__ = ["DEFAULT_BETA", "DEFAULT_PM_DEG", "rule_constants", "TuningRule", "Gains"]
 
-#: MRFT parameter of the flight tests (paper: altitude beta_z0 = -0.72/-0.73)
-DEFAULT_BETA = -0.73
 #: phase margin of the homogeneous rule used in flight, deg
 DEFAULT_PM_DEG = 20.0
 
