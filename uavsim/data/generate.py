@@ -344,6 +344,25 @@ def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NP
     return RefiningRelay(relay, stage, r.test.refinements, q)
 
 
+def chunk_params(plan: Plan, ids: np.ndarray) -> list[LumpedParams]:
+    """The processes of episodes ``ids`` of ``plan``: their class's lumped parameters at their drawn gain."""
+    return [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e])) for e in ids]
+
+
+def episode_batch(params: list[LumpedParams], plan: Plan, ids: np.ndarray, duration_s: float, seed: int, *,
+                  nthread: int = 0, chunk: int = 0, record_state: bool = False
+                  ) -> tuple[LoopBatch, NPMRFT | RefiningRelay]:
+    """The batch and the controller that fly episodes ``ids`` (of chunk ``chunk``) of ``plan``.
+
+    Generation runs them; a replay runs them again with ``record_state=True`` (same draws).
+    """
+    r = plan.recipe
+    samples = int(round(duration_s * r.episodes.rate_hz))
+    lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples), seed=seed,
+                   nthread=nthread, y0=plan.y0[ids], record_state=record_state)
+    return lb, episode_controller(plan, ids, chunk, seed)
+
+
 def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, duration_s: float, seed: int,
                  nthread: int = 0, chunk: int = 0) -> dict[str, np.ndarray]:
     """Simulate episodes ``ids`` (of chunk ``chunk``) of ``plan`` with the processes ``params`` and preprocess them.
@@ -358,10 +377,7 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
     """
     r = plan.recipe
     m = len(ids)
-    samples = int(round(duration_s * r.episodes.rate_hz))
-    lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples), seed=seed,
-                   nthread=nthread, y0=plan.y0[ids])
-    ctrl = episode_controller(plan, ids, chunk, seed)
+    lb, ctrl = episode_batch(params, plan, ids, duration_s, seed, nthread=nthread, chunk=chunk)
     res = lb.run(ctrl, duration_s)
     relay = ctrl.relay if isinstance(ctrl, RefiningRelay) else ctrl
     resp: dict[str, np.ndarray] = {}
@@ -381,7 +397,7 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
 def run_chunk(plan: Plan, index: int, nthread: int = 0) -> dict[str, np.ndarray]:
     """Simulate and preprocess chunk ``index`` of ``plan`` (a pure function of the plan and index)."""
     ids = plan.chunks[index]
-    params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e])) for e in ids]
+    params = chunk_params(plan, ids)
     return run_episodes(params, plan, ids, float(plan.durations[index]), int(plan.sim_seeds[index]), nthread, index)
 
 

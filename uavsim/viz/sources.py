@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -255,13 +255,12 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
     from uavsim.data import preprocess
     from uavsim.data.generate import (
         RefiningRelay,
-        _effects,
-        episode_controller,
+        chunk_params,
+        episode_batch,
         load_family_grid,
         make_plan,
     )
     from uavsim.data.recipe import parse_recipe
-    from uavsim.sim.runner import LoopBatch
 
     a = ds.attrs
     try:
@@ -298,11 +297,8 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
         return None, f"the rebuilt plan's draws differ from the file's ({', '.join(bad)})"
     r = plan.recipe
     dur = float(plan.durations[ci])
-    samples = int(round(dur * r.episodes.rate_hz))
-    params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[i]])), K=float(plan.K[i])) for i in ids]
-    lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples),
-                   seed=int(plan.sim_seeds[ci]), y0=plan.y0[ids], record_state=True)
-    ctrl = episode_controller(plan, ids, ci, int(plan.sim_seeds[ci]))
+    lb, ctrl = episode_batch(chunk_params(plan, ids), plan, ids, dur, int(plan.sim_seeds[ci]), chunk=ci,
+                             record_state=True)
     relay_first = ctrl.history[0] if isinstance(ctrl, RefiningRelay) else (ctrl.tau_obs.copy(), ctrl.a_n.copy())
     res = lb.run(ctrl, dur)
     j = int(np.flatnonzero(ids == e)[0])
