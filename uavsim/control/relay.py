@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN
 
 #: relay readings: 1 = tracker restarts at the switch (uavsim-session/1), 2 = half-wave after the zero crossing
 READINGS = (1, 2)
@@ -174,7 +175,7 @@ class NPMRFT:
     """
 
     #: name written in sessions
-    kind = "np-mrft"
+    kind = NP_MRFT_RUN
 
     def __init__(self, beta, h, tau_obs, a_n, rate_hz: float, n: int, bias=0.0, reading: int = READING):
         check_relay_params(beta, h, tau_obs, a_n, rate_hz)
@@ -338,7 +339,7 @@ class NPMRFT:
 class MRFT(NPMRFT):
     """Plain MRFT: NP-MRFT with ``a_n = 0`` and an extremum confirmed one sample after it was set."""
 
-    kind = "mrft"
+    kind = MRFT_RUN
 
     def __init__(self, beta, h, rate_hz: float, n: int, bias=0.0, reading: int = READING):
         super().__init__(beta, h, 0.0, 0.0, rate_hz, n, bias, reading)

@@ -63,6 +63,10 @@ __all__ = [
     "LATERAL_LOOPS",
     "LOOPS",
     "RUN_KINDS",
+    "RELAY_KINDS",
+    "NP_MRFT_RUN",
+    "MRFT_RUN",
+    "STEP_RUN",
     "RUN_KEYS",
     "SESSION_FILE",
     "EffectSpec",
@@ -92,7 +96,10 @@ LOOPS = ("altitude", "roll", "pitch", "lateral_x", "lateral_y")
 # Lateral loops have the extra body time constant T2 (position is two
 # integrations behind attitude); the others must not have it.
 LATERAL_LOOPS = ("lateral_x", "lateral_y")
-RUN_KINDS = ("np-mrft", "mrft", "step")
+# The run kinds: an NP-MRFT or MRFT relay run, a PD step response.
+NP_MRFT_RUN, MRFT_RUN, STEP_RUN = "np-mrft", "mrft", "step"
+RUN_KINDS = (NP_MRFT_RUN, MRFT_RUN, STEP_RUN)
+RELAY_KINDS = (NP_MRFT_RUN, MRFT_RUN)
 CSV_HEADER = ("t", "r", "y", "u")
 
 # The effect vocabulary of the spec, in its table order: name -> parameter names, and
@@ -102,9 +109,9 @@ CSV_HEADER = ("t", "r", "y", "u")
 
 # Per run kind: (required parameter keys, optional parameter keys).
 RUN_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "np-mrft": (("beta", "h", "tau_obs", "a_n"), ("bias",)),
-    "mrft": (("beta", "h"), ("bias",)),
-    "step": (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ()),
+    NP_MRFT_RUN: (("beta", "h", "tau_obs", "a_n"), ("bias",)),
+    MRFT_RUN: (("beta", "h"), ("bias",)),
+    STEP_RUN: (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ()),
 }
 # Every parameter field of RunSpec, in the order they are written.
 _RUN_PARAMS = (

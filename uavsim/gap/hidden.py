@@ -30,7 +30,16 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.formats.session import ModelSpec, Run, RunData, RunSpec, Session, write_session
+from uavsim.formats.session import (
+    NP_MRFT_RUN,
+    STEP_RUN,
+    ModelSpec,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    write_session,
+)
 from uavsim.gap.simulate import Episode, SessionController, run_reference
 from uavsim.lumped.params import RANGES, LumpedParams, loop_family
 from uavsim.model.effects import make_effect, vocabulary
@@ -163,12 +172,12 @@ def _fly(p: LumpedParams, h: float, period: float, amp: float, noise_std: float,
     tau_obs, a_n = 0.015, 2.0 * noise_std
     g = TuningRule().gains(p)
     specs = [
-        RunSpec("np_b073_h1.csv", "np-mrft", beta=-0.73, h=h, tau_obs=tau_obs, a_n=a_n),
-        RunSpec("np_b073_h2.csv", "np-mrft", beta=-0.73, h=2 * h, tau_obs=tau_obs, a_n=a_n),
-        RunSpec("np_b030_h1.csv", "np-mrft", beta=-0.3, h=h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b073_h1.csv", NP_MRFT_RUN, beta=-0.73, h=h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b073_h2.csv", NP_MRFT_RUN, beta=-0.73, h=2 * h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b030_h1.csv", NP_MRFT_RUN, beta=-0.3, h=h, tau_obs=tau_obs, a_n=a_n),
         # half the rule's gains: the rule leaves 20 deg of phase margin, which a
         # hidden delay or lag would eat; the step run must stay stable
-        RunSpec("step.csv", "step", kp=0.5 * g.kp, kd=0.5 * g.kd, derivative_filter_hz=g.derivative_filter_hz,
+        RunSpec("step.csv", STEP_RUN, kp=0.5 * g.kp, kd=0.5 * g.kd, derivative_filter_hz=g.derivative_filter_hz,
                 step=round(2.0 * amp, 12), step_time=0.5),
     ]
     T = int(round(duration * RATE_HZ))

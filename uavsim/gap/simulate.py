@@ -28,7 +28,7 @@ import numpy as np
 from uavsim.control.pd import PD
 from uavsim.control.relay import NPMRFT, READING
 from uavsim.errors import UserError
-from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Run, Session
+from uavsim.formats.session import EFFECT_PARAMS, MRFT_RUN, STEP_RUN, ModelSpec, Run, Session
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects import Effect, make_effect, vocabulary
 from uavsim.sim.runner import LoopBatch
@@ -93,7 +93,7 @@ class SessionController:
     def __init__(self, runs: Sequence[Run], plans: Sequence[Episode], rate_hz: float, reading: int = READING):
         n = len(plans)
         specs = [runs[p.run].spec for p in plans]
-        self.is_step = np.array([s.kind == "step" for s in specs])
+        self.is_step = np.array([s.kind == STEP_RUN for s in specs])
         f = lambda name, default: np.array(  # noqa: E731
             [default if getattr(s, name) is None else float(getattr(s, name)) for s in specs]
         )
@@ -105,7 +105,7 @@ class SessionController:
             self.relay = NPMRFT(beta, h, f("tau_obs", 0.0), f("a_n", 0.0), rate_hz, n, bias=f("bias", 0.0),
                                 reading=reading)
             # mrft: an extremum is confirmed one sample after it was set (docs/formats/session.md)
-            self.relay.n_obs[np.array([s.kind == "mrft" for s in specs])] = 1
+            self.relay.n_obs[np.array([s.kind == MRFT_RUN for s in specs])] = 1
         self.pd = None
         if self.is_step.any():
             self.pd = PD(f("kp", 0.0), f("kd", 0.0), f("derivative_filter_hz", 1.0), rate_hz, n)
@@ -182,7 +182,7 @@ def run_reference(run: Run, T: int, rate_hz: float) -> np.ndarray:
     """The reference of ``run`` on ``T`` control samples, shape (T,): its step, or its recorded ``r`` held at the end."""
     s = run.spec
     t = np.arange(T) / rate_hz
-    if s.kind == "step":
+    if s.kind == STEP_RUN:
         return np.where(t >= float(s.step_time), float(s.step), 0.0)
     r = np.asarray(run.data.r, dtype=np.float64)
     return np.concatenate([r, np.full(max(T - r.size, 0), r[-1])])[:T]

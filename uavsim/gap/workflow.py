@@ -40,6 +40,7 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.formats.session import (
     EFFECT_PARAMS,
+    STEP_RUN,
     EffectSpec,
     ModelSpec,
     Session,
@@ -150,7 +151,7 @@ def read_model_file(path: str | Path, loop: str) -> ModelSpec:
 
 def _session_scales(session: Session, feats: list[dict | None]) -> dict[str, float]:
     """Scales that place the candidate grids: period, relay amplitudes, oscillation amplitude, max |u|."""
-    relays = [(r, f) for r, f in zip(session.runs, feats, strict=True) if r.spec.kind != "step" and f is not None]
+    relays = [(r, f) for r, f in zip(session.runs, feats, strict=True) if r.spec.kind != STEP_RUN and f is not None]
     hs = [float(r.spec.h) for r, _ in relays] or [float(np.max(np.abs(session.runs[0].data.u)))]
     period = float(np.exp(np.median([f["period"] for _, f in relays]))) if relays else 1.0
     amp = float(np.exp(min(f["amplitude"] for _, f in relays))) if relays else 1.0
@@ -346,7 +347,7 @@ def run_gap(
     ev = _Evaluator(session, model, base, seed, nthread, dt)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
-            what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != "step" else "no usable step"
+            what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
             raise UserError(f"run {i} ({r.spec.file}): the measured data holds {what}; the gap cannot be measured")
     rate = float(session.control_rate_hz)
 
@@ -354,7 +355,7 @@ def run_gap(
     before = ev.sims([("none", 0.0)], seeds=SEEDS)
     fb = [ev.features(s) for s in before]
     for i, (r, f) in enumerate(zip(session.runs, fb[0], strict=True)):
-        if f is None and r.spec.kind != "step":
+        if f is None and r.spec.kind != STEP_RUN:
             raise UserError(
                 f"run {i} ({r.spec.file}): the model does not even reproduce the oscillation "
                 f"(measured period {math.exp(ev.meas[i]['period']):.3g} s; the simulated run "

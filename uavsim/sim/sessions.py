@@ -12,7 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.formats.session import ModelSpec, Run, RunData, RunSpec, Session, write_session
+from uavsim.formats.session import (
+    MRFT_RUN,
+    NP_MRFT_RUN,
+    ModelSpec,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    write_session,
+)
 from uavsim.lumped.params import LumpedParams
 from uavsim.sim.runner import EpisodeResult
 
@@ -43,7 +52,7 @@ def relay_session(
     np_mrft = tau_obs > 0 or a_n > 0
     spec = RunSpec(
         file=file,
-        kind="np-mrft" if np_mrft else "mrft",
+        kind=NP_MRFT_RUN if np_mrft else MRFT_RUN,
         beta=float(beta),
         h=float(h),
         tau_obs=float(tau_obs) if np_mrft else None,
