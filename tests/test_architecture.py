@@ -94,7 +94,7 @@ def test_the_checks_see_circles_and_private_names():
     # the checks themselves: a made-up circle and a private import are found
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
     graph, private = _imports(_modules())
-    assert "uavsim.sim.runner" in graph["uavsim.data.generate"]
+    assert "uavsim.sim.runner" in graph["uavsim.data.episodes"]
     assert ("uavsim.tuning.table_report", "uavsim.tuning.grid", "_AXES") in private
 
 
