@@ -37,7 +37,7 @@ __all__ = ["VisionEpisode", "VisionResult", "MODES"]
 MODES = ("kf", "camera", "scheduled")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class VisionResult(EpisodeResult):
     """``EpisodeResult`` plus the vision signals, all (n, T).
 
@@ -185,7 +185,7 @@ class VisionEpisode:
         for arr in (*out.values(), QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
-        return VisionResult(t, out["r"], out["y"], out["u"], out["yt"], diverged, reasons, None, self.seed, QP, RF,
-                            y_cam=out["ycam"], y_kf=out["ykf"], target=out["tgt"], pos=out["pos"],
+        return VisionResult(t=t, r=out["r"], y=out["y"], u=out["u"], y_true=out["yt"], diverged=diverged,
+                            reasons=reasons, switched=None, seed=self.seed, qpos=QP, rotor_force=RF, y_cam=out["ycam"], y_kf=out["ykf"], target=out["tgt"], pos=out["pos"],
                             schedule=out["sched"] if self.mode == "scheduled" else None,
                             innovation=out["nu"], force=out["f"])

@@ -55,7 +55,7 @@ from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
 _HOLD_OMEGA = 2.0  # rad/s
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EpisodeResult:
     """Recorded episodes, at the control rate.
 
@@ -487,5 +487,5 @@ class LoopBatch:
         for arr in (R_out, Y, U, Yt, QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
-        return EpisodeResult(t, R_out, Y, U, Yt, diverged.copy(), dict(self.reasons), SW if has_sw else None,
-                             self.seed, QP, RF)
+        return EpisodeResult(t=t, r=R_out, y=Y, u=U, y_true=Yt, diverged=diverged.copy(), reasons=dict(self.reasons),
+                             switched=SW if has_sw else None, seed=self.seed, qpos=QP, rotor_force=RF)

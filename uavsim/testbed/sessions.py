@@ -90,7 +90,7 @@ def session_name(seed: int) -> str:
     return f"tb_{seed:05d}"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SessionPlan:
     """Everything drawn from the seed before the flight."""
 
@@ -223,7 +223,8 @@ def plan_session(seed: int, kinds: tuple[str, ...] = KINDS, loop: str | None = N
         scales = replace(scales, noise_std=_probe_noise(v, loop, gains, seed))
     effects = [draw_effect(n, re, scales) for n in names]
     nominal = {"K": p.K, "T_prop": p.T_prop, "T1": p.T1, "tau": p.tau}
-    return SessionPlan(int(seed), kind, loop, v, effects, nominal, scales, float(h), gains)
+    return SessionPlan(seed=int(seed), kind=kind, loop=loop, vehicle=v, effects=effects, nominal=nominal,
+                       scales=scales, h=float(h), step_gains=gains)
 
 
 def _oscillates(u: np.ndarray) -> bool:
