@@ -236,7 +236,7 @@ def test_zero_noise_periods_match_grid(tmp_path):
 
     The grid's period is the exact continuous-time relay cycle; the controller is
     sampled at 4 kHz here so that its sampling delay is negligible (at 200 Hz it
-    lengthens the fastest classes' cycles by up to ~25%, see the README)."""
+    lengthens the fastest classes' cycles by up to ~25%)."""
     g = load_grid("altitude")
     order = np.argsort(g.period)
     classes = [int(c) for c in (*order[:3], *order[[80, 160]])]

@@ -164,7 +164,7 @@ def test_output_delay_is_applied():
     for _ in range(400):
         lb.qvel[:, 0] = 0.2  # x rises linearly, so the lag reads off the value
         X.append(lb.qpos[:, 0].copy())
-        S.append(lb._measure_true())
+        S.append(lb.measure_true())
         lb.batch.step(nstep=1)
     X, S = np.array(X), np.array(S)
     # the slide damping bleeds a little velocity within a step: compare with the recorded path

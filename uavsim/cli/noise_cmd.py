@@ -28,6 +28,7 @@ import numpy as np
 
 from uavsim.cli._common import print_json, print_table
 from uavsim.errors import UserError
+from uavsim.formats.session import NP_MRFT_RUN, STEP_RUN
 from uavsim.noise.estimate import estimate_noise, recommend, recommended_beta_min, refine
 
 
@@ -55,7 +56,7 @@ def analyse(session, run_file: str | None = None, beta: float | None = None) -> 
     rate = float(session.control_rate_hz)
     e = np.asarray(d.r, dtype=float) - np.asarray(d.y, dtype=float)
     b = beta if beta is not None else (run.spec.beta if run.spec.beta is not None else -0.73)
-    if run.spec.kind == "step":
+    if run.spec.kind == STEP_RUN:
         t_step = run.spec.step_time or 0.0
         # settled part: the second half of what follows the step
         start = t_step + 0.5 * (d.t[-1] - t_step)
@@ -66,8 +67,8 @@ def analyse(session, run_file: str | None = None, beta: float | None = None) -> 
                "cutoff_hz": est.cutoff_hz, "period": None, "amplitude": None, "level_time": None,
                "switch_error": None, "refined": False, "notes": est.notes}
     else:
-        run_tau = float(run.spec.tau_obs or 0.0) if run.spec.kind == "np-mrft" else 1.0 / rate
-        run_a_n = float(run.spec.a_n or 0.0) if run.spec.kind == "np-mrft" else 0.0
+        run_tau = float(run.spec.tau_obs or 0.0) if run.spec.kind == NP_MRFT_RUN else 1.0 / rate
+        run_a_n = float(run.spec.a_n or 0.0) if run.spec.kind == NP_MRFT_RUN else 0.0
         ref = refine(np.asarray(d.t, dtype=float), e, np.asarray(d.u, dtype=float), beta=b, tau_obs=run_tau,
                      a_n=run_a_n, rate_hz=rate)
         tau_obs, a_n = ref.tau_obs, ref.a_n

@@ -22,7 +22,7 @@ import argparse
 from typing import Any
 
 from uavsim.cli._common import print_json, print_table
-from uavsim.formats.session import read_session, session_summary
+from uavsim.formats.session import NP_MRFT_RUN, RELAY_KINDS, read_session, session_summary
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -63,7 +63,7 @@ def _register_import(actions) -> None:
     imp.add_argument("--u", metavar="FIELD", help="relay command (overrides the preset's)")
     imp.add_argument("--loop", help="session loop (default: the preset's)")
     imp.add_argument("--format", choices=FORMATS, help="log format (default: from the file)")
-    imp.add_argument("--kind", default="np-mrft", choices=["np-mrft", "mrft"], help="relay run kind")
+    imp.add_argument("--kind", default=NP_MRFT_RUN, choices=list(RELAY_KINDS), help="relay run kind")
     imp.add_argument("--beta", type=float, help="the relay's beta (required)")
     imp.add_argument("--h", type=float, help="relay amplitude, command units (default: detected in u)")
     imp.add_argument("--bias", type=float, help="relay bias, command units (default: detected in u)")

@@ -15,19 +15,14 @@ from uavsim.control.relay import MRFT, NPMRFT
 from uavsim.lumped.params import LumpedParams
 from uavsim.noise.analysis import cycle_stats
 from uavsim.sim.runner import LoopBatch
-
-_DEFAULTS = {
-    "altitude": dict(K=1.0, T_prop=0.1, T1=0.8, tau=0.02),
-    "roll": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01),
-    "pitch": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01),
-}
+from uavsim.sim.sessions import DEMO_PARAMS, episode_to_session
 
 
 def _relay(args: argparse.Namespace) -> int:
-    loops = args.loop or list(_DEFAULTS)
+    loops = args.loop or list(DEMO_PARAMS)
     rows = []
     for loop in loops:
-        kw = dict(_DEFAULTS[loop])
+        kw = dict(DEMO_PARAMS[loop])
         for k in ("K", "T_prop", "T1", "tau"):
             v = getattr(args, k)
             if v is not None:
@@ -52,8 +47,6 @@ def _relay(args: argparse.Namespace) -> int:
             pass
         rows.append(row)
         if args.session:
-            from uavsim.sim.sessions import episode_to_session
-
             path = episode_to_session(res, 0, loop, args, f"{args.session}/{loop}")
             eprint(f"{loop}: session written to {path}")
     if args.json:
@@ -68,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ssub = p.add_subparsers(dest="sim_command", metavar="ACTION")
     ssub.required = True
     r = ssub.add_parser("relay", help="one MRFT/NP-MRFT episode per loop", description=__doc__)
-    r.add_argument("--loop", action="append", choices=list(_DEFAULTS), help="loop (repeatable; default all inner loops)")
+    r.add_argument("--loop", action="append", choices=list(DEMO_PARAMS), help="loop (repeatable; default all inner loops)")
     r.add_argument("--K", type=float, help="loop gain")
     r.add_argument("--T-prop", dest="T_prop", type=float, help="propulsion time constant, s")
     r.add_argument("--T1", type=float, help="body time constant, s")

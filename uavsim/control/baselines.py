@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavsim.control.relay import _as_batch, check_relay_params
+from uavsim.control.relay import as_batch, check_relay_params
 from uavsim.errors import UserError
 
 
@@ -68,10 +68,10 @@ class InhibitedMRFT:
             raise UserError(f"inhibition time must be >= 0 s, got {t_inh.ravel()[:3].tolist()}")
         self.n = int(n)
         self.rate_hz = float(rate_hz)
-        self.beta = _as_batch("beta", beta, n)
-        self.h = _as_batch("h", h, n)
-        self.bias = _as_batch("bias", bias, n)
-        self.t_inhibit = _as_batch("t_inhibit", t_inhibit, n)
+        self.beta = as_batch("beta", beta, n)
+        self.h = as_batch("h", h, n)
+        self.bias = as_batch("bias", bias, n)
+        self.t_inhibit = as_batch("t_inhibit", t_inhibit, n)
         # t - t_switch >= t_inhibit on the sample grid, tolerant to rounding
         self.n_inh = np.ceil(self.t_inhibit * self.rate_hz - 1e-9).astype(np.int64)
         self.reset()
@@ -146,9 +146,9 @@ class TwoRelayMRFT:
         check_relay_params(beta, h, 0.0, 0.0, rate_hz)
         self.n = int(n)
         self.rate_hz = float(rate_hz)
-        self.beta = _as_batch("beta", beta, n)
-        self.h = _as_batch("h", h, n)
-        self.bias = _as_batch("bias", bias, n)
+        self.beta = as_batch("beta", beta, n)
+        self.h = as_batch("h", h, n)
+        self.bias = as_batch("bias", bias, n)
         self.h0 = self.h * np.sqrt(1.0 - self.beta**2)
         self.h1 = -self.beta * self.h
         self.reset()

@@ -46,6 +46,7 @@ import math
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN
 
 #: relay readings: 1 = tracker restarts at the switch (uavsim-session/1), 2 = half-wave after the zero crossing
 READINGS = (1, 2)
@@ -53,7 +54,8 @@ READINGS = (1, 2)
 READING = 2
 
 
-def _as_batch(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
+def as_batch(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
+    """A relay parameter (scalar or (n,)) as an (n,) float64 copy; ``UserError`` unless finite."""
     arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
     if not np.all(np.isfinite(arr)):
         raise UserError(f"relay parameter {name} must be finite")
@@ -173,18 +175,18 @@ class NPMRFT:
     """
 
     #: name written in sessions
-    kind = "np-mrft"
+    kind = NP_MRFT_RUN
 
     def __init__(self, beta, h, tau_obs, a_n, rate_hz: float, n: int, bias=0.0, reading: int = READING):
         check_relay_params(beta, h, tau_obs, a_n, rate_hz)
         self.reading = check_reading(reading)
         self.n = int(n)
         self.rate_hz = float(rate_hz)
-        self.beta = _as_batch("beta", beta, n)
-        self.h = _as_batch("h", h, n)
-        self.a_n = _as_batch("a_n", a_n, n)
-        self.bias = _as_batch("bias", bias, n)
-        self.tau_obs = _as_batch("tau_obs", tau_obs, n)
+        self.beta = as_batch("beta", beta, n)
+        self.h = as_batch("h", h, n)
+        self.a_n = as_batch("a_n", a_n, n)
+        self.bias = as_batch("bias", bias, n)
+        self.tau_obs = as_batch("tau_obs", tau_obs, n)
         # Confirmation counted in whole samples: t - t_ext >= tau_obs on a grid of
         # Ts, with a tolerance so that tau_obs = 6.5 * Ts is not lost to rounding.
         self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
@@ -202,10 +204,10 @@ class NPMRFT:
         check_relay_params(self.beta, self.h, 0.0 if tau_obs is None else tau_obs, 0.0 if a_n is None else a_n,
                            self.rate_hz)
         if tau_obs is not None:
-            self.tau_obs = _as_batch("tau_obs", tau_obs, self.n)
+            self.tau_obs = as_batch("tau_obs", tau_obs, self.n)
             self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
         if a_n is not None:
-            self.a_n = _as_batch("a_n", a_n, self.n)
+            self.a_n = as_batch("a_n", a_n, self.n)
             self._corr = self.a_n * (1.0 - self.beta)
 
     def reset(self) -> None:
@@ -337,7 +339,7 @@ class NPMRFT:
 class MRFT(NPMRFT):
     """Plain MRFT: NP-MRFT with ``a_n = 0`` and an extremum confirmed one sample after it was set."""
 
-    kind = "mrft"
+    kind = MRFT_RUN
 
     def __init__(self, beta, h, rate_hz: float, n: int, bias=0.0, reading: int = READING):
         super().__init__(beta, h, 0.0, 0.0, rate_hz, n, bias, reading)

@@ -37,7 +37,6 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
-import datetime as _dt
 import difflib
 import math
 import os
@@ -52,6 +51,9 @@ from typing import Any
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.errors import short_repr as _short
+from uavsim.errors import type_name as _type_name
+from uavsim.model.effects.vocabulary import EFFECT_PARAMS, PARAM_RANGES
 
 __all__ = [
     "CSV_HEADER",
@@ -61,6 +63,10 @@ __all__ = [
     "LATERAL_LOOPS",
     "LOOPS",
     "RUN_KINDS",
+    "RELAY_KINDS",
+    "NP_MRFT_RUN",
+    "MRFT_RUN",
+    "STEP_RUN",
     "RUN_KEYS",
     "SESSION_FILE",
     "EffectSpec",
@@ -90,46 +96,22 @@ LOOPS = ("altitude", "roll", "pitch", "lateral_x", "lateral_y")
 # Lateral loops have the extra body time constant T2 (position is two
 # integrations behind attitude); the others must not have it.
 LATERAL_LOOPS = ("lateral_x", "lateral_y")
-RUN_KINDS = ("np-mrft", "mrft", "step")
+# The run kinds: an NP-MRFT or MRFT relay run, a PD step response.
+NP_MRFT_RUN, MRFT_RUN, STEP_RUN = "np-mrft", "mrft", "step"
+RUN_KINDS = (NP_MRFT_RUN, MRFT_RUN, STEP_RUN)
+RELAY_KINDS = (NP_MRFT_RUN, MRFT_RUN)
 CSV_HEADER = ("t", "r", "y", "u")
 
-# The effect vocabulary of the spec, in its table order: name -> parameter names.
-EFFECT_PARAMS: dict[str, tuple[str, ...]] = {
-    "none": (),
-    "delay": ("delay",),
-    "lag": ("T",),
-    "gain": ("factor",),
-    "saturation": ("limit",),
-    "dead_zone": ("width",),
-    "rate_limit": ("rate",),
-    "bias": ("offset",),
-    "quantization": ("step",),
-    "sample_hold": ("rate_hz",),
-    "lowpass": ("cutoff_hz",),
-    "noise": ("std",),
-}
-
-# Allowed range of each effect parameter (the names are unique across effects):
-# ">0" strictly positive, ">=0" non-negative, "any" any finite value.
-_EFFECT_RANGES: dict[str, str] = {
-    "delay": ">=0",
-    "T": ">0",
-    "factor": ">0",
-    "limit": ">0",
-    "width": ">=0",
-    "rate": ">0",
-    "offset": "any",
-    "step": ">0",
-    "rate_hz": ">0",
-    "cutoff_hz": ">0",
-    "std": ">=0",
-}
+# The effect vocabulary of the spec, in its table order: name -> parameter names, and
+# each parameter's allowed range (PARAM_RANGES: ">0", ">=0", "any"; the names are unique
+# across effects). Both are live views of the effects' own session terms
+# (uavsim.model.effects.vocabulary), so a new vocabulary effect is one new effect file.
 
 # Per run kind: (required parameter keys, optional parameter keys).
 RUN_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "np-mrft": (("beta", "h", "tau_obs", "a_n"), ("bias",)),
-    "mrft": (("beta", "h"), ("bias",)),
-    "step": (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ()),
+    NP_MRFT_RUN: (("beta", "h", "tau_obs", "a_n"), ("bias",)),
+    MRFT_RUN: (("beta", "h"), ("bias",)),
+    STEP_RUN: (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ()),
 }
 # Every parameter field of RunSpec, in the order they are written.
 _RUN_PARAMS = (
@@ -323,29 +305,6 @@ class Session:
 
 # ---------------------------------------------------------------------------
 # Small checking helpers
-
-
-def _short(value: Any, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _type_name(value: Any) -> str:
-    if isinstance(value, bool):
-        return "boolean"
-    if isinstance(value, int):
-        return "integer"
-    if isinstance(value, float):
-        return "float"
-    if isinstance(value, str):
-        return "string"
-    if isinstance(value, list):
-        return "array"
-    if isinstance(value, dict):
-        return "table"
-    if isinstance(value, _dt.date | _dt.time):
-        return "date/time"
-    return type(value).__name__
 
 
 def _fmt(x: float) -> str:
@@ -542,7 +501,7 @@ def validate_effect(effect: EffectSpec, where: str) -> None:
         if key not in effect.params:
             raise SessionError(f"{where}: missing key {key!r} (parameter of a {name} effect)")
         x = _number(effect.params[key], key, where)
-        _check_range(x, key, where, _EFFECT_RANGES[key])
+        _check_range(x, key, where, PARAM_RANGES[key])
 
 
 def _effect_key_error(where: str, key: str, name: str) -> SessionError:
@@ -820,7 +779,7 @@ def _parse_effect(table: dict, i: int, toml: str) -> EffectSpec:
     where = f"{toml}: [[effects]] #{i + 1}"
     if "name" not in table:
         for key in table:
-            if key not in _EFFECT_RANGES:
+            if key not in PARAM_RANGES:
                 raise _unknown_key(where, key, ("name",))
         raise SessionError(f"{where}: missing key 'name'")
     name = _string(table["name"], "name", where)

@@ -1,4 +1,4 @@
-"""The sim-vs-measured gap workflow (issue 9): which physical effect does the model lack?
+"""The sim-vs-measured gap workflow: which physical effect does the model lack?
 
 ``run_gap`` simulates every run of a flight session on the MuJoCo loop with
 the session's model and the session's controller semantics, compares measured

@@ -55,7 +55,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from uavsim.formats.session import RunSpec
+from uavsim.formats.session import STEP_RUN, RunSpec
 from uavsim.noise.analysis import cycle_harmonics, relay_phase
 
 __all__ = ["FLOORS", "DISTANCES", "run_features", "compare", "gap_value", "worst_window"]
@@ -189,7 +189,7 @@ def step_features(spec: RunSpec, t: np.ndarray, y: np.ndarray) -> dict | None:
 def run_features(spec: RunSpec, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
     """Features of one run (see the module docstring); None when it cannot be analysed."""
     t, y, u = (np.asarray(v, dtype=np.float64) for v in (t, y, u))
-    if spec.kind == "step":
+    if spec.kind == STEP_RUN:
         return step_features(spec, t, y)
     return relay_features(t, y, u)
 

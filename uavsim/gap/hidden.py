@@ -29,21 +29,29 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.formats.session import ModelSpec, Run, RunData, RunSpec, Session, write_session
-from uavsim.gap.simulate import _Mixed, _reference
+from uavsim.errors import UserError
+from uavsim.formats.session import (
+    NP_MRFT_RUN,
+    STEP_RUN,
+    ModelSpec,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    write_session,
+)
+from uavsim.gap.simulate import Episode, SessionController, run_reference
 from uavsim.lumped.params import RANGES, LumpedParams, loop_family
-from uavsim.model.effects import make_effect
+from uavsim.model.effects import make_effect, vocabulary
 from uavsim.noise.analysis import rising_edges
 from uavsim.sim.runner import LoopBatch
 from uavsim.tuning.rule import TuningRule
 
 __all__ = ["HIDDEN_EFFECTS", "Truth", "hidden_session", "write_hidden", "draw_effect"]
 
-# The vocabulary the suite draws from, ``none`` included (uniformly).
-HIDDEN_EFFECTS = (
-    "none", "delay", "lag", "gain", "saturation", "dead_zone", "rate_limit",
-    "bias", "quantization", "sample_hold", "lowpass", "noise",
-)  # fmt: skip
+# The vocabulary the suite draws from, ``none`` included (uniformly): a live view of the
+# registered vocabulary effects, in the format's table order.
+HIDDEN_EFFECTS = vocabulary.WITH_NONE
 RATE_HZ = 200.0
 
 
@@ -97,34 +105,13 @@ def draw_effect(name: str, rng: np.random.Generator, period: float, h: float, am
     rate_hz : float
         Control rate, Hz.
     """
-    u = rng.uniform
     if name == "none":
         return {}
-    if name == "delay":
-        return {"delay": u(0.04, 0.12) * period}
-    if name == "lag":
-        return {"T": u(0.04, 0.12) * period}
-    if name == "gain":
-        return {"factor": float(math.exp(rng.choice([-1, 1]) * u(math.log(1.3), math.log(2.2))))}
-    if name == "saturation":
-        return {"limit": u(0.5, 0.85) * 2 * h}  # between h and 2 h: only the large relay and the step clip
-    if name == "dead_zone":
-        return {"width": u(0.15, 0.45) * h}
-    if name == "rate_limit":
-        return {"rate": 4 * h / (u(0.05, 0.15) * period)}  # a full 2*(2h) swing takes 5-15% of the period
-    if name == "bias":
-        return {"offset": float(rng.choice([-1, 1]) * u(0.15, 0.4) * h)}
-    if name == "quantization":
-        return {"step": u(0.1, 0.3) * amp}
-    if name == "sample_hold":
-        lo, hi = 15.0, min(0.5 * rate_hz, 1.0 / (0.03 * period))
-        return {"rate_hz": float(math.exp(u(math.log(lo), math.log(max(hi, lo * 1.01)))))}
-    if name == "lowpass":
-        f0 = 1.0 / period
-        return {"cutoff_hz": float(min(f0 / u(0.12, 0.35), 0.4 * rate_hz))}
-    if name == "noise":
-        return {"std": u(1.5, 4.0) * noise_std}
-    raise ValueError(f"unknown effect {name!r}")
+    try:
+        term = vocabulary.term(name)
+    except UserError:
+        raise ValueError(f"unknown effect {name!r}") from None
+    return term.draw(rng, period, h, amp, noise_std, rate_hz)
 
 
 def _oscillates(t: np.ndarray, u: np.ndarray) -> bool:
@@ -151,7 +138,7 @@ def hidden_session(seed: int, effect: str | None = None, loop: str | None = None
     """
     rng = np.random.default_rng([seed, 9])
     loop = loop or str(rng.choice(["altitude", "roll", "pitch"]))
-    effect = effect or str(rng.choice(HIDDEN_EFFECTS))
+    effect = effect or str(rng.choice(tuple(HIDDEN_EFFECTS)))
     box = RANGES[loop_family(loop)]
     for _attempt in range(20):
         p = LumpedParams(
@@ -185,12 +172,12 @@ def _fly(p: LumpedParams, h: float, period: float, amp: float, noise_std: float,
     tau_obs, a_n = 0.015, 2.0 * noise_std
     g = TuningRule().gains(p)
     specs = [
-        RunSpec("np_b073_h1.csv", "np-mrft", beta=-0.73, h=h, tau_obs=tau_obs, a_n=a_n),
-        RunSpec("np_b073_h2.csv", "np-mrft", beta=-0.73, h=2 * h, tau_obs=tau_obs, a_n=a_n),
-        RunSpec("np_b030_h1.csv", "np-mrft", beta=-0.3, h=h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b073_h1.csv", NP_MRFT_RUN, beta=-0.73, h=h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b073_h2.csv", NP_MRFT_RUN, beta=-0.73, h=2 * h, tau_obs=tau_obs, a_n=a_n),
+        RunSpec("np_b030_h1.csv", NP_MRFT_RUN, beta=-0.3, h=h, tau_obs=tau_obs, a_n=a_n),
         # half the rule's gains: the rule leaves 20 deg of phase margin, which a
         # hidden delay or lag would eat; the step run must stay stable
-        RunSpec("step.csv", "step", kp=0.5 * g.kp, kd=0.5 * g.kd, derivative_filter_hz=g.derivative_filter_hz,
+        RunSpec("step.csv", STEP_RUN, kp=0.5 * g.kp, kd=0.5 * g.kd, derivative_filter_hz=g.derivative_filter_hz,
                 step=round(2.0 * amp, 12), step_time=0.5),
     ]
     T = int(round(duration * RATE_HZ))
@@ -201,10 +188,8 @@ def _fly(p: LumpedParams, h: float, period: float, amp: float, noise_std: float,
     if effect != "none":
         fx.append(make_effect(effect, **params))
     lb = LoopBatch([p] * len(runs), rate_hz=RATE_HZ, effects=fx, seed=seed, nthread=0)
-    ref = np.stack([_reference(r, T, RATE_HZ) for r in runs])
-    from uavsim.gap.simulate import Episode
-
-    res = lb.run(_Mixed(runs, [Episode(i) for i in range(len(runs))], RATE_HZ), duration, reference=ref)
+    ref = np.stack([run_reference(r, T, RATE_HZ) for r in runs])
+    res = lb.run(SessionController(runs, [Episode(i) for i in range(len(runs))], RATE_HZ), duration, reference=ref)
     if res.diverged.any():
         return None
     for i in range(3):

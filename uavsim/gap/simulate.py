@@ -20,7 +20,6 @@ that flies sessions everywhere else.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -29,35 +28,19 @@ import numpy as np
 from uavsim.control.pd import PD
 from uavsim.control.relay import NPMRFT, READING
 from uavsim.errors import UserError
-from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Run, Session
+from uavsim.formats.session import EFFECT_PARAMS, MRFT_RUN, STEP_RUN, ModelSpec, Run, Session
 from uavsim.lumped.params import LumpedParams
-from uavsim.model.effects import Effect, make_effect
+from uavsim.model.effects import Effect, make_effect, vocabulary
 from uavsim.sim.runner import LoopBatch
 
-__all__ = ["Episode", "SimRun", "simulate", "batch_effects", "IDENTITY", "SUPPORTED_LOOPS"]
+__all__ = ["Episode", "SimRun", "SessionController", "simulate", "batch_effects", "run_reference", "IDENTITY",
+           "SUPPORTED_LOOPS"]
 
 SUPPORTED_LOOPS = ("altitude", "roll", "pitch")
 
 #: Parameter value of each vocabulary effect that leaves the loop unchanged
-#: (``sample_hold``: the control rate, filled in by :func:`batch_effects`).
-IDENTITY: dict[str, float] = {
-    "delay": 0.0,
-    "gain": 1.0,
-    "lag": 0.0,
-    "rate_limit": math.inf,
-    "dead_zone": 0.0,
-    "saturation": math.inf,
-    "bias": 0.0,
-    "noise": 0.0,
-    "quantization": 0.0,
-    "sample_hold": math.nan,
-    "lowpass": math.inf,
-}
-#: Order of the chains, as the session generator applies them: model effects,
-#: then on the command lag, rate limit, dead zone, saturation, bias, and on the
-#: measurement the (model's plus extra) noise, quantization, sample-and-hold, low-pass.
-CHAIN = ("delay", "gain", "lag", "rate_limit", "dead_zone", "saturation", "bias",
-         "noise", "quantization", "sample_hold", "lowpass")  # fmt: skip
+#: (``sample_hold``: the control rate, filled in by :func:`batch_effects`), in chain order.
+IDENTITY = vocabulary.IDENTITY
 
 
 @dataclass(frozen=True)
@@ -101,7 +84,7 @@ class SimRun:
     diverged: bool
 
 
-class _Mixed:
+class SessionController:
     """Relay episodes and PD episodes of one batch, selected per episode (``e`` (n,) -> ``u`` (n,)).
 
     ``reading`` is the relay reading of the session's format version (``Session.reading``).
@@ -110,7 +93,7 @@ class _Mixed:
     def __init__(self, runs: Sequence[Run], plans: Sequence[Episode], rate_hz: float, reading: int = READING):
         n = len(plans)
         specs = [runs[p.run].spec for p in plans]
-        self.is_step = np.array([s.kind == "step" for s in specs])
+        self.is_step = np.array([s.kind == STEP_RUN for s in specs])
         f = lambda name, default: np.array(  # noqa: E731
             [default if getattr(s, name) is None else float(getattr(s, name)) for s in specs]
         )
@@ -122,7 +105,7 @@ class _Mixed:
             self.relay = NPMRFT(beta, h, f("tau_obs", 0.0), f("a_n", 0.0), rate_hz, n, bias=f("bias", 0.0),
                                 reading=reading)
             # mrft: an extremum is confirmed one sample after it was set (docs/formats/session.md)
-            self.relay.n_obs[np.array([s.kind == "mrft" for s in specs])] = 1
+            self.relay.n_obs[np.array([s.kind == MRFT_RUN for s in specs])] = 1
         self.pd = None
         if self.is_step.any():
             self.pd = PD(f("kp", 0.0), f("kd", 0.0), f("derivative_filter_hz", 1.0), rate_hz, n)
@@ -166,10 +149,10 @@ def batch_effects(
     Returns
     -------
     list of Effect
-        Model, command and measurement effects, in :data:`CHAIN` order, for :class:`LoopBatch`.
+        Model, command and measurement effects, in the vocabulary's chain order, for :class:`LoopBatch`.
     """
     n = len(names)
-    identity = dict(IDENTITY, sample_hold=float(rate_hz))
+    identity = vocabulary.identity(rate_hz)
     par = {k: np.full(n, v, dtype=np.float64) for k, v in identity.items()}
     for name, v in (base or {}).items():
         par[name][:] = float(v)
@@ -180,7 +163,7 @@ def batch_effects(
     par["noise"] = np.sqrt(np.broadcast_to(np.asarray(noise_std, dtype=np.float64), (n,)) ** 2 + par["noise"] ** 2)
     return [
         make_effect(name, **{EFFECT_PARAMS[name][0]: par[name]})
-        for name in CHAIN
+        for name in identity
         if np.any(par[name] != identity[name])  # effects no episode uses cost nothing
     ]
 
@@ -195,10 +178,11 @@ def model_params(session: Session, model: ModelSpec) -> LumpedParams:
     return LumpedParams(session.loop, K=model.K, T_prop=model.T_prop, T1=model.T1, tau=model.tau).check()
 
 
-def _reference(run: Run, T: int, rate_hz: float) -> np.ndarray:
+def run_reference(run: Run, T: int, rate_hz: float) -> np.ndarray:
+    """The reference of ``run`` on ``T`` control samples, shape (T,): its step, or its recorded ``r`` held at the end."""
     s = run.spec
     t = np.arange(T) / rate_hz
-    if s.kind == "step":
+    if s.kind == STEP_RUN:
         return np.where(t >= float(s.step_time), float(s.step), 0.0)
     r = np.asarray(run.data.r, dtype=np.float64)
     return np.concatenate([r, np.full(max(T - r.size, 0), r[-1])])[:T]
@@ -243,8 +227,8 @@ def simulate(
     values = [e.value for e in plans]
     fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
     lb = LoopBatch([p] * len(plans), dt=dt, rate_hz=rate, effects=fx, seed=seed, nthread=nthread)
-    ref = np.stack([_reference(session.runs[e.run], T, rate) for e in plans])
-    res = lb.run(_Mixed(session.runs, plans, rate, session.reading), T / rate, reference=ref)
+    ref = np.stack([run_reference(session.runs[e.run], T, rate) for e in plans])
+    res = lb.run(SessionController(session.runs, plans, rate, session.reading), T / rate, reference=ref)
     out = []
     for i, L in enumerate(lens):
         out.append(SimRun(res.t[:L], res.r[i, :L], res.y[i, :L], res.u[i, :L], bool(res.diverged[i])))

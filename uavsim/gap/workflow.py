@@ -40,6 +40,7 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.formats.session import (
     EFFECT_PARAMS,
+    STEP_RUN,
     EffectSpec,
     ModelSpec,
     Session,
@@ -48,11 +49,12 @@ from uavsim.formats.session import (
 )
 from uavsim.gap.features import compare, gap_value, noise_scales, run_features, worst_window
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
+from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "run_gap", "format_table", "read_model_file", "candidate_grid"]
 
-#: candidate effects, in the vocabulary's order
-CANDIDATES = tuple(n for n in EFFECT_PARAMS if n != "none")
+#: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
+CANDIDATES = vocabulary.NAMES
 #: score added per fitted parameter (in gap units)
 PENALTY = 0.25
 #: a gap at or below this is what noise explains: the answer is ``none``
@@ -149,7 +151,7 @@ def read_model_file(path: str | Path, loop: str) -> ModelSpec:
 
 def _session_scales(session: Session, feats: list[dict | None]) -> dict[str, float]:
     """Scales that place the candidate grids: period, relay amplitudes, oscillation amplitude, max |u|."""
-    relays = [(r, f) for r, f in zip(session.runs, feats, strict=True) if r.spec.kind != "step" and f is not None]
+    relays = [(r, f) for r, f in zip(session.runs, feats, strict=True) if r.spec.kind != STEP_RUN and f is not None]
     hs = [float(r.spec.h) for r, _ in relays] or [float(np.max(np.abs(session.runs[0].data.u)))]
     period = float(np.exp(np.median([f["period"] for _, f in relays]))) if relays else 1.0
     amp = float(np.exp(min(f["amplitude"] for _, f in relays))) if relays else 1.0
@@ -196,39 +198,10 @@ def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: f
 
     ``hint`` (``data_hints``), when given, is added with its neighbours 15% either side.
     """
-    grid = _base_grid(name, sc, noise_std, rate_hz, n)
+    grid = np.asarray(vocabulary.term(name).grid(sc, noise_std, rate_hz, n), dtype=np.float64)
     if hint is None or not math.isfinite(hint) or hint <= 0:
         return grid
     return np.unique(np.concatenate([grid, hint * np.array([0.85, 1.0, 1.15])]))
-
-
-def _base_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int) -> np.ndarray:
-    P, g = sc["period"], np.geomspace
-    if name == "delay":
-        return g(0.01 * P, 0.3 * P, n)
-    if name == "lag":
-        return g(0.01 * P, 0.3 * P, n)
-    if name == "gain":
-        return g(1 / 3, 3.0, n + 1)
-    if name == "saturation":
-        return g(0.15, 1.0, n) * sc["umax"]
-    if name == "dead_zone":
-        return g(0.03, 0.8, n) * sc["h_min"]
-    if name == "rate_limit":
-        return 4 * sc["h_max"] / (g(0.01, 0.4, n) * P)
-    if name == "bias":
-        half = g(0.03, 0.8, n // 2 + 1) * sc["h_min"]
-        return np.concatenate([-half[::-1], half])
-    if name == "quantization":
-        return g(0.02, 0.6, n) * sc["amp"]
-    if name == "sample_hold":
-        return g(4.0, rate_hz / 1.5, n)
-    if name == "lowpass":
-        return g(min(0.3 / P, 0.4 * rate_hz), 0.45 * rate_hz, n)
-    if name == "noise":
-        base = noise_std if noise_std > 0 else 0.01 * sc["amp"]
-        return g(0.3, 8.0, n) * base
-    raise ValueError(name)
 
 
 class _Evaluator:
@@ -272,10 +245,9 @@ def _polish(ev: _Evaluator, effect: str, value: float, rate_hz: float) -> tuple[
 
     Returns the value, its fresh-seed gap and those runs (seed 0)."""
     vals = value * np.asarray(POLISH)
-    if effect == "sample_hold":  # a frame rate above the control rate is no hold at all
-        vals = np.minimum(vals, rate_hz)
-    elif effect == "lowpass":
-        vals = np.minimum(vals, 0.45 * rate_hz)
+    cap = vocabulary.term(effect).cap
+    if cap is not None:  # e.g. a frame rate above the control rate is no hold at all
+        vals = np.minimum(vals, cap(rate_hz))
     vals = np.unique(vals)
     sims = ev.sims([(effect, float(v)) for v in vals], seeds=SEEDS)
     gaps = [ev.seed_gap(sims[k * SEEDS:(k + 1) * SEEDS]) for k in range(vals.size)]
@@ -355,6 +327,7 @@ def run_gap(
     GapResult
     """
     t_start = time.perf_counter()
+    candidates = tuple(candidates)
     bad = [c for c in candidates if c not in CANDIDATES]
     if bad or not candidates:
         raise UserError(f"unknown candidate effect {bad[0] if bad else '(none given)'!r}")
@@ -374,7 +347,7 @@ def run_gap(
     ev = _Evaluator(session, model, base, seed, nthread, dt)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
-            what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != "step" else "no usable step"
+            what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
             raise UserError(f"run {i} ({r.spec.file}): the measured data holds {what}; the gap cannot be measured")
     rate = float(session.control_rate_hz)
 
@@ -382,7 +355,7 @@ def run_gap(
     before = ev.sims([("none", 0.0)], seeds=SEEDS)
     fb = [ev.features(s) for s in before]
     for i, (r, f) in enumerate(zip(session.runs, fb[0], strict=True)):
-        if f is None and r.spec.kind != "step":
+        if f is None and r.spec.kind != STEP_RUN:
             raise UserError(
                 f"run {i} ({r.spec.file}): the model does not even reproduce the oscillation "
                 f"(measured period {math.exp(ev.meas[i]['period']):.3g} s; the simulated run "

@@ -11,27 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.errors import UserError
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN, RELAY_KINDS
+from uavsim.logs.errors import LogError, hint
 
 __all__ = ["FORMATS", "PRESETS", "LogError", "hint", "Preset", "FieldSpec", "detect_format", "parse_field", "read_series",
            "sample_on_grid", "detect_relay", "import_log"]
 
 FORMATS = ("ulog", "dataflash", "rosbag")
-
-
-def hint(name: str, known) -> str:
-    """``did you mean 'x'? `` for the known name closest to ``name``, or ''."""
-    import difflib
-
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
-    return f"did you mean {close[0]!r}? " if close else ""
-
-
-class LogError(UserError):
-    """A log that cannot become a session; one line naming the log and the problem."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__(message.replace("\r", "\\r").replace("\n", "\\n"))
 
 
 @dataclass(frozen=True)
@@ -268,7 +254,7 @@ def detect_relay(t: np.ndarray, u: np.ndarray, min_switches: int = 6) -> dict[st
 
 def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | None = None,
                r: str | None = None, y: str | None = None, u: str | None = None, loop: str | None = None,
-               fmt: str | None = None, kind: str = "np-mrft", beta: float | None = None, h: float | None = None,
+               fmt: str | None = None, kind: str = NP_MRFT_RUN, beta: float | None = None, h: float | None = None,
                bias: float | None = None, tau_obs: float | None = None, a_n: float | None = None,
                rate_hz: float | None = None, start: float | None = None, stop: float | None = None,
                run_file: str | None = None, log_fn=None) -> dict[str, Any]:
@@ -313,11 +299,11 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
     missing = [k for k, v in names.items() if v is None]
     if missing:
         raise LogError(f"name the log fields of {', '.join(missing)} (--{missing[0]} TOPIC.FIELD) or a preset")
-    if kind not in ("np-mrft", "mrft"):
+    if kind not in RELAY_KINDS:
         raise LogError(f"--kind must be np-mrft or mrft (a relay run), got {kind!r}")
     if beta is None:
         raise LogError("--beta is required: the relay's beta cannot be read off the log")
-    if kind == "np-mrft" and (tau_obs is None or a_n is None):
+    if kind == NP_MRFT_RUN and (tau_obs is None or a_n is None):
         raise LogError("an np-mrft run needs --tau-obs and --a-n (the relay's settings in flight)")
     if not path.exists():
         raise LogError(f"{path}: no such log")
@@ -354,7 +340,7 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
         raise LogError(f"--start {start} must be before --stop {stop}")
     grid, cols = sample_on_grid(series, rate_hz, start, stop, str(path))
     spec = RunSpec(file=run_file or "relay.csv", kind=kind, beta=float(beta), h=float(h), bias=float(bias),
-                   tau_obs=None if kind == "mrft" else float(tau_obs), a_n=None if kind == "mrft" else float(a_n))
+                   tau_obs=None if kind == MRFT_RUN else float(tau_obs), a_n=None if kind == MRFT_RUN else float(a_n))
     # session time starts at 0; the log time of the first sample is in the answer
     data = RunData(t=np.arange(grid.size) / rate_hz, r=cols["r"], y=cols["y"], u=cols["u"])
     folder = write_session(Session(loop=loop, control_rate_hz=float(rate_hz), runs=[Run(spec, data)]), out)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.logs.importer import LogError, hint
+from uavsim.logs.errors import LogError, hint
 
 __all__ = ["read"]
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.logs.importer import LogError
-from uavsim.logs.importer import hint as _hint
+from uavsim.logs.errors import LogError
+from uavsim.logs.errors import hint as _hint
 
 __all__ = ["read"]
 

@@ -6,7 +6,7 @@ Every lumped model has an exact frequency response (delays enter as
     inner:    G(jw) = K e^{-j w tau} / (jw (T_prop jw + 1)(T1 jw + 1))
     lateral:  G(jw) = K e^{-j w tau_out} T_att(jw) / (jw (T2 jw + 1))
 
-(``T_att`` in ``uavsim.lumped.lateral``). The MRFT with parameter ``beta`` and
+(``T_att``: :func:`attitude_closed_loop_batch`, the model in ``uavsim.lumped.lateral``). The MRFT with parameter ``beta`` and
 relay amplitude ``h`` has the describing function
 ``N(a) = 4h/(pi a) (sqrt(1 - beta^2) - j beta)``; harmonic balance
 ``N(a0) G(j Omega0) = -1`` gives
@@ -39,7 +39,17 @@ __all__ = [
     "mrft_prediction",
     "mrft_prediction_batch",
     "check_beta",
+    "batch_args",
+    "column",
+    "attitude_filter",
+    "attitude_closed_loop_batch",
+    "DEFAULT_BETA",
+    "DERIVATIVE_FILTER_RATIO",
 ]
+
+#: MRFT parameter of the flight tests (paper: altitude beta_z0 = -0.72/-0.73); the tuning
+#: rule's default (``uavsim.tuning.rule``), and the beta at which the attitude filter is set
+DEFAULT_BETA = -0.73
 
 
 def check_beta(beta: float) -> float:
@@ -49,7 +59,7 @@ def check_beta(beta: float) -> float:
     return float(beta)
 
 
-def _col(x, n: int) -> np.ndarray:
+def column(x, n: int) -> np.ndarray:
     """Broadcast a scalar or (B,) array to shape (B, 1)."""
     a = np.asarray(x, dtype=float)
     return np.broadcast_to(a.reshape(-1) if a.ndim else a, (n,)).reshape(n, 1)
@@ -93,19 +103,18 @@ def freq_response_batch(
     w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
     s = 1j * w
     if family in ("attitude", "altitude", "roll", "pitch"):
-        Tp, T1c, tc = _col(T_prop, B), _col(T1, B), _col(tau, B)
-        return _col(K, B) * np.exp(-s * tc) / (s * (Tp * s + 1.0) * (T1c * s + 1.0))
+        Tp, T1c, tc = column(T_prop, B), column(T1, B), column(tau, B)
+        return column(K, B) * np.exp(-s * tc) / (s * (Tp * s + 1.0) * (T1c * s + 1.0))
     if family in ("lateral", "lateral_x", "lateral_y"):
-        from uavsim.lumped.lateral import attitude_closed_loop_batch
-
         if T2 is None or tau_in is None or att_kp is None or att_kd is None:
             raise UserError("lateral frequency response needs T2, tau_in, att_kp and att_kd")
         Tatt = attitude_closed_loop_batch(w, T_prop, T1, tau_in, att_kp, att_kd, att_N)
-        return _col(K, B) * np.exp(-s * _col(tau, B)) * Tatt / (s * (_col(T2, B) * s + 1.0))
+        return column(K, B) * np.exp(-s * column(tau, B)) * Tatt / (s * (column(T2, B) * s + 1.0))
     raise UserError(f"unknown loop family {family!r}")
 
 
-def _p_args(p: LumpedParams) -> dict:
+def batch_args(p: LumpedParams) -> dict:
+    """The keyword arguments of the ``*_batch`` functions for one process (its parameters, B = 1)."""
     d = {"K": p.K, "T_prop": p.T_prop, "T1": p.T1, "tau": p.tau}
     if p.family == "lateral":
         d.update(T2=p.T2, tau_in=p.tau_in, att_kp=p.att_kp, att_kd=p.att_kd, att_N=2 * math.pi * p.att_filter_hz)
@@ -127,7 +136,7 @@ def freq_response(p: LumpedParams, omega: np.ndarray) -> np.ndarray:
     ndarray, complex, shape (W,)
     """
     p.check()
-    return freq_response_batch(p.family, np.atleast_1d(omega), **_p_args(p))[0]
+    return freq_response_batch(p.family, np.atleast_1d(omega), **batch_args(p))[0]
 
 
 def unwrapped_phase_batch(family: str, omega: np.ndarray, **params) -> np.ndarray:
@@ -143,9 +152,9 @@ def unwrapped_phase_batch(family: str, omega: np.ndarray, **params) -> np.ndarra
         w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
         return (
             -np.pi / 2
-            - np.arctan(w * _col(params["T_prop"], B))
-            - np.arctan(w * _col(params["T1"], B))
-            - w * _col(params["tau"], B)
+            - np.arctan(w * column(params["T_prop"], B))
+            - np.arctan(w * column(params["T1"], B))
+            - w * column(params["tau"], B)
         )
     G = freq_response_batch(family, omega, **{**params, "K": 1.0})
     ph = np.unwrap(np.angle(G), axis=-1)
@@ -254,7 +263,48 @@ def mrft_prediction(p: LumpedParams, beta: float, h: float = 1.0) -> tuple[float
     p.check()
     if not h > 0:
         raise UserError(f"relay amplitude h must be > 0, got {h!r}")
-    w, a = mrft_prediction_batch(p.family, beta, h, **_p_args(p))
+    w, a = mrft_prediction_batch(p.family, beta, h, **batch_args(p))
     if not np.isfinite(w[0]):
         raise UserError(f"{p.loop}: no MRFT oscillation predicted for beta={beta} (phase never reaches the target)")
     return float(w[0]), float(a[0])
+
+
+#: the rule's derivative filter: N = DERIVATIVE_FILTER_RATIO * Omega (rad/s)
+DERIVATIVE_FILTER_RATIO = 10.0
+
+
+def attitude_filter(T_prop, T1, tau_in, beta: float | None = None) -> np.ndarray:
+    """Derivative filter (rad/s) of the attitude PD: ``10 * Omega_att``, shape (B,)."""
+    w, _ = mrft_prediction_batch(
+        "attitude", DEFAULT_BETA if beta is None else beta, 1.0, K=1.0, T_prop=T_prop, T1=T1, tau=tau_in
+    )
+    return DERIVATIVE_FILTER_RATIO * w
+
+
+def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, att_kd, att_N=None) -> np.ndarray:
+    """Complementary sensitivity ``T_att(j w)`` of the closed attitude loop.
+
+    Parameters
+    ----------
+    omega : ndarray, shape (W,) or (B, W)
+        Frequencies, rad/s.
+    T_prop, T1, tau_in : float or ndarray (B,)
+        Attitude process (unit gain), s.
+    att_kp, att_kd : float or ndarray (B,)
+        Attitude PD gains for the unit-gain process.
+    att_N : float or ndarray (B,) or None
+        Derivative filter, rad/s; None -> ``attitude_filter(T_prop, T1, tau_in)``.
+
+    Returns
+    -------
+    ndarray, complex, shape (B, W)
+    """
+    if att_N is None:
+        att_N = attitude_filter(T_prop, T1, tau_in)
+    omega = np.asarray(omega, dtype=float)
+    B = max(omega.shape[0] if omega.ndim == 2 else 1, *(np.size(v) for v in (T_prop, T1, tau_in, att_kp, att_kd, att_N)))
+    w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
+    s = 1j * w
+    C = column(att_kp, B) + column(att_kd, B) * s / (1.0 + s / column(att_N, B))
+    L = C * freq_response_batch("attitude", w, 1.0, T_prop, T1, tau_in)
+    return L / (1.0 + L)

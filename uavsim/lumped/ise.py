@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from uavsim.lumped.frequency import _col, freq_response_batch
+from uavsim.lumped.frequency import column, freq_response_batch
 
-__all__ = ["step_ise_batch", "loop_is_stable_batch"]
+__all__ = ["step_ise_batch", "loop_is_stable_batch", "frequency_grid"]
 
 
-def _grid(omega_ref: np.ndarray, n: int, span: float) -> np.ndarray:
+def frequency_grid(omega_ref: np.ndarray, n: int, span: float) -> np.ndarray:
     """Log grid (B, n) from omega_ref/span to omega_ref*span."""
     u = np.linspace(-np.log(span), np.log(span), n)
     return np.asarray(omega_ref, float).reshape(-1, 1) * np.exp(u)[None, :]
@@ -39,7 +39,7 @@ def _grid(omega_ref: np.ndarray, n: int, span: float) -> np.ndarray:
 def _loop(family: str, w: np.ndarray, kp, kd, N, params: dict) -> np.ndarray:
     B = w.shape[0]
     s = 1j * w
-    C = _col(kp, B) + _col(kd, B) * s / (1.0 + s / _col(N, B))
+    C = column(kp, B) + column(kd, B) * s / (1.0 + s / column(N, B))
     return C * freq_response_batch(family, w, **params)
 
 
@@ -99,7 +99,7 @@ def step_ise_batch(
     """
     sizes = [np.size(v) for v in (kp, kd, N, omega_ref, *params.values()) if v is not None]
     B = max(sizes)
-    w = _grid(np.broadcast_to(np.asarray(omega_ref, float), (B,)), n, span)
+    w = frequency_grid(np.broadcast_to(np.asarray(omega_ref, float), (B,)), n, span)
     L = _loop(family, w, kp, kd, N, params)
     S = 1.0 / (1.0 + L)
     lw = np.log(w)

@@ -34,7 +34,13 @@ from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import _p_args, check_beta, freq_response_batch, mrft_prediction
+from uavsim.lumped.frequency import (
+    attitude_filter,
+    batch_args,
+    check_beta,
+    freq_response_batch,
+    mrft_prediction,
+)
 from uavsim.lumped.params import LumpedParams
 
 __all__ = [
@@ -167,8 +173,6 @@ def _make_batch(family: str, dt: float, params: dict):
     if family == "lateral":
         p = dict(params)
         if p.get("att_N") is None:
-            from uavsim.lumped.lateral import attitude_filter
-
             p["att_N"] = attitude_filter(p["T_prop"], p["T1"], p["tau_in"])
         return _LateralBatch(p["K"], p["T_prop"], p["T1"], p["tau"], p["T2"], p["tau_in"], p["att_kp"], p["att_kd"], p["att_N"], dt)
     return _InnerBatch(params["K"], params["T_prop"], params["T1"], params["tau"], dt)
@@ -263,9 +267,9 @@ def simulate(p: LumpedParams, controller: str, dt: float, t_end: float, **kw) ->
     p.check()
     n = int(round(t_end / dt))
     if controller == "mrft":
-        out = simulate_relay_batch(p.family, kw["beta"], kw.get("h", 1.0), dt, n, **_p_args(p))
+        out = simulate_relay_batch(p.family, kw["beta"], kw.get("h", 1.0), dt, n, **batch_args(p))
     elif controller == "pd_step":
-        out = simulate_pd_step_batch(p.family, kw["kp"], kw["kd"], kw["N"], dt, n, **_p_args(p))
+        out = simulate_pd_step_batch(p.family, kw["kp"], kw["kd"], kw["N"], dt, n, **batch_args(p))
     else:
         raise UserError(f"unknown controller {controller!r} (mrft | pd_step)")
     return {k: (v[0] if v.ndim == 2 else v) for k, v in out.items()}
@@ -298,7 +302,7 @@ def fourier_limit_cycle(p: LumpedParams, beta: float, h: float = 1.0, n_harm: in
     p.check()
     beta = check_beta(beta)
     w_df, _ = mrft_prediction(p, beta, h)
-    args = _p_args(p)
+    args = batch_args(p)
     k = np.arange(1, 2 * n_harm, 2, dtype=float)
     th = np.linspace(0.0, np.pi, n_t + 1)  # w t over the half-period
     # sin(k th + phi) = sin(k th) cos(phi) + cos(k th) sin(phi): two mat-vecs per frequency
@@ -367,7 +371,7 @@ def exact_limit_cycle(
     if dt is None:
         dt = min(1e-4, T / 4000)
     n = int(n_periods * T / dt)
-    out = simulate_relay_batch(p.family, beta, h, dt, n, **_p_args(p))
+    out = simulate_relay_batch(p.family, beta, h, dt, n, **batch_args(p))
     return _cycle_from_sim(out["t"], out["e"][0], out["u"][0])
 
 
@@ -380,7 +384,7 @@ def step_ise_time(p: LumpedParams, kp: float, kd: float, N: float, dt: float | N
         t_end = t_end or 40 * T
         dt = dt or min(1e-4, 0.02 / N)
     n = int(round(t_end / dt))
-    e = simulate_pd_step_batch(p.family, kp, kd, N, dt, n, **_p_args(p))["e"][0]
+    e = simulate_pd_step_batch(p.family, kp, kd, N, dt, n, **batch_args(p))["e"][0]
     if not np.all(np.isfinite(e)) or np.abs(e[-n // 10:]).max() > 1.0:
         return math.inf
     return float(np.sum(e**2) * dt)
@@ -414,4 +418,4 @@ def step_ise(p: LumpedParams, kp: float, kd: float, N: float, method: str = "fre
     from uavsim.lumped.ise import step_ise_batch
 
     w, _ = mrft_prediction(p, -0.73, 1.0)
-    return float(step_ise_batch(p.family, kp, kd, N, w, **_p_args(p))[0])
+    return float(step_ise_batch(p.family, kp, kd, N, w, **batch_args(p))[0])

@@ -4,6 +4,10 @@ Each model is a measurement :class:`~uavsim.model.effects.base.SignalEffect`:
 a dataclass of its parameters, validated on construction, ``reset(n, rate_hz,
 rng)`` once per batch of ``n`` episodes, then called once per control sample
 with the clean measurement ``x`` (shape ``(n,)``), returning the noisy one.
+Each additive model also draws its whole-episode noise at once, vectorized
+over time (``trace(m, T, rate_hz, rng)``, shape ``(T, m)``), for dataset
+generation. ``white`` and ``quantization`` are the session vocabulary's
+``noise`` and ``quantization`` effects under their study names.
 Every random number comes from the ``rng`` given to ``reset``. Amplitude-like
 parameters accept a scalar or a per-episode array of shape ``(n,)`` (the noise
 level is relative to each process's own oscillation amplitude ``a0``).
@@ -41,6 +45,8 @@ from scipy import signal as _signal
 
 from uavsim.errors import UserError
 from uavsim.model.effects.base import SignalEffect, require
+from uavsim.model.effects.noise import Noise
+from uavsim.model.effects.quantization import Quantization as _Quantization
 
 #: study noise kinds, in table order
 NOISE_KINDS = ("paper", "white", "quantization", "coloured", "outliers")
@@ -62,6 +68,10 @@ def _batch(value: Amp, n: int, name: str) -> np.ndarray:
     if arr.ndim == 1 and arr.shape[0] != n:
         raise UserError(f"noise parameter {name} has {arr.shape[0]} episodes, the batch has {n}")
     return np.broadcast_to(arr, (n,)).copy()
+
+
+def _per_episode(value: Amp, m: int) -> np.ndarray:
+    return np.broadcast_to(np.asarray(value, dtype=np.float64), (m,)).copy()
 
 
 def pixel_step(distance_m: float, focal_px: float) -> float:
@@ -133,43 +143,45 @@ class PaperNoise(SignalEffect):
         self._phase = self._phase + 2 * np.pi * f / self.rate_hz
         return out
 
+    def trace(self, m, T, rate_hz, rng):
+        require(self.freq_hz * (1 + self.freq_var) < rate_hz / 2, self.name,
+                f"freq_hz {self.freq_hz} too high for a {rate_hz} Hz sample rate")
+        a = _per_episode(self.a_n, m)
+        phase0, pa, pf = (rng.uniform(0, 2 * np.pi, m) for _ in range(3))
+        w = 2 * np.pi * self.mod_hz * (np.arange(T) / rate_hz)[:, None]
+        amp = a * (1 + self.amp_var * np.sin(w + pa))
+        f = self.freq_hz * (1 + self.freq_var * np.sin(0.77 * w + pf))
+        # the phase integrates the instantaneous frequency; sample k uses the phase before step k
+        steps = 2 * np.pi * f / rate_hz
+        phase = phase0 + np.concatenate([np.zeros((1, m)), np.cumsum(steps[:-1], axis=0)])
+        return amp * np.sin(phase)
 
-@dataclass
-class WhiteNoise(SignalEffect):
-    """Zero-mean white Gaussian noise of standard deviation ``std`` (output units)."""
 
-    std: Amp = 0.0
+@dataclass(eq=False)
+class WhiteNoise(Noise):
+    """Zero-mean white Gaussian noise of standard deviation ``std`` (output units).
+
+    The session vocabulary's ``noise`` effect under its study name (one implementation).
+    """
+
     name = "white"
-    target = "measurement"
-
-    def validate(self) -> None:
-        _check_amp(self.name, "std", self.std)
-
-    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
-        super().reset(n, rate_hz, rng)
-        self._std = _batch(self.std, n, "std")
-
-    def __call__(self, x: np.ndarray, k: int) -> np.ndarray:
-        return x + self._std * self.rng.standard_normal(self.n)
+    session = None
 
 
-@dataclass
-class Quantization(SignalEffect):
-    """Measurement rounded to the nearest multiple of ``step`` (output units, > 0)."""
+@dataclass(eq=False)
+class Quantization(_Quantization):
+    """Measurement rounded to the nearest multiple of ``step`` (output units, > 0).
+
+    The session vocabulary's ``quantization`` effect under its study name, where a step of 0
+    (no quantization) is not a noise level.
+    """
 
     step: Amp = 1.0
     name = "quantization_study"
-    target = "measurement"
+    session = None
 
     def validate(self) -> None:
         _check_amp(self.name, "step", self.step, positive=True)
-
-    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
-        super().reset(n, rate_hz, rng)
-        self._step = _batch(self.step, n, "step")
-
-    def __call__(self, x: np.ndarray, k: int) -> np.ndarray:
-        return self._step * np.round(x / self._step)
 
 
 @dataclass
@@ -229,6 +241,13 @@ class ColouredNoise(SignalEffect):
         v, self._zi = _signal.sosfilt(self._sos, w, axis=0, zi=self._zi)
         return x + self._scale * v[0]
 
+    def trace(self, m, T, rate_hz, rng):
+        sos, gain = self.design(rate_hz)
+        # a warm-up history puts the filter in its stationary state at sample 0
+        warm = int(10 * rate_hz / (self.low_hz or self.high_hz)) + 10
+        v = _signal.sosfilt(sos, rng.standard_normal((warm + T, m)), axis=0)[warm:]
+        return _per_episode(self.std, m) / gain * v
+
 
 @dataclass
 class Outliers(SignalEffect):
@@ -251,6 +270,11 @@ class Outliers(SignalEffect):
         hit = self.rng.random(self.n) < self.prob
         sign = np.where(self.rng.random(self.n) < 0.5, -1.0, 1.0)
         return x + np.where(hit, sign * self._amp, 0.0)
+
+    def trace(self, m, T, rate_hz, rng):
+        hit = rng.random((T, m)) < self.prob
+        sign = np.where(rng.random((T, m)) < 0.5, -1.0, 1.0)
+        return np.where(hit, sign * _per_episode(self.amplitude, m), 0.0)
 
 
 @dataclass

@@ -1,12 +1,12 @@
 """Visual-servoing episodes on the MuJoCo hexarotor, through a sensor chain.
 
-``LoopBatch.run`` gives measurement effects only the measured signal; a
-visual-servoing loop also needs the true acceleration (IMU), the target's
-motion (the camera measures the vehicle *relative to the target*) and, for
-the schedule switch, the Kalman filter's innovation. So this module runs its
-own episode loop on ``LoopBatch``'s model, batch and actuation (the same
-physics, holds and force effects), with a ``SensorChain`` in place of the
-measurement effects.
+A visual-servoing loop's measurement needs more than the measured signal:
+the true acceleration (IMU), the target's motion (the camera measures the
+vehicle *relative to the target*) and, for the schedule switch, the Kalman
+filter's innovation. So the episode steps ``LoopBatch``'s episode loop
+(``start``/``measure``/``actuate``/``step``: the same physics, actuation,
+holds, force effects and divergence checks) with a ``SensorChain`` as its
+measurement stage, and records the chain's signals.
 
 Modes: ``"kf"`` (the controller sees the Kalman estimate, PBVS), ``"camera"``
 (the camera alone, IBVS), ``"scheduled"`` (both, with the schedule switch;
@@ -37,7 +37,7 @@ __all__ = ["VisionEpisode", "VisionResult", "MODES"]
 MODES = ("kf", "camera", "scheduled")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class VisionResult(EpisodeResult):
     """``EpisodeResult`` plus the vision signals, all (n, T).
 
@@ -56,6 +56,31 @@ class VisionResult(EpisodeResult):
     schedule: np.ndarray | None = None
     innovation: np.ndarray | None = None
     force: np.ndarray | None = None
+
+
+class _SensorStage:
+    """The sensor chain as the loop's measurement stage: the camera sees the vehicle relative to
+    ``target_m`` and the IMU the true acceleration; the controller sees the Kalman estimate
+    (``kf``) or the camera (``camera``, ``scheduled``: the episode blends them). The chain's whole
+    reading of the last sample is in ``reading``."""
+
+    def __init__(self, chain: SensorChain, lb: LoopBatch, mode: str) -> None:
+        self.chain, self.lb, self.mode = chain, lb, mode
+        self.ax = lb.map.axis
+        self.target_m = 0.0
+        self.reading = None
+
+    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
+        self.chain.reset(n, rate_hz, rng)
+        self.Ts = 1.0 / rate_hz
+        self.v_prev = self.lb.qvel[:, self.ax].copy()
+
+    def __call__(self, y_true: np.ndarray, k: int) -> np.ndarray:
+        v = self.lb.qvel[:, self.ax]
+        acc = (v - self.v_prev) / self.Ts
+        self.v_prev = v.copy()
+        self.reading = self.chain(y_true - self.target_m, acc, k)
+        return self.reading.y_kf if self.mode == "kf" else self.reading.y_cam
 
 
 class VisionEpisode:
@@ -119,89 +144,48 @@ class VisionEpisode:
             raise UserError(f"episode length must be > 0 s, got {duration_s}")
         lb, n = self.lb, self.n
         T = int(round(duration_s * self.rate_hz))
-        Ts = 1.0 / self.rate_hz
-        rng = np.random.default_rng(self.seed)
-        chain = SensorChain(self.chain_params)
-        chain.reset(n, self.rate_hz, rng)
-        for e in lb.force_fx:
-            e.reset(n, self.rate_hz, rng, lb.map.damping[:, :3])
+        stage = _SensorStage(SensorChain(self.chain_params), lb, self.mode)
+        # the paper's vehicle saturates the lateral controller output (tilt)
+        lb.start(T, stage, tilt_limit_rad=lb.vehicle.lateral_limit_rad)
         sw = ScheduleSwitch(self.switch_params, self.rate_hz, n) if self.mode == "scheduled" else None
         ax = lb.map.axis
-        t = np.arange(T) / self.rate_hz
+        t = lb.t
         out = {k: np.zeros((n, T)) for k in ("r", "y", "u", "yt", "ycam", "ykf", "tgt", "pos", "sched", "nu", "f")}
         QP, RF = lb.state_buffers(T)
-        diverged = np.zeros(n, dtype=bool)
-        reasons: dict[int, str] = {}
-        lateral = lb.lateral
-        if lateral:
-            from uavsim.control.pd import PD
-
-            att = PD(lb.map.att_kp, lb.map.att_kd, lb.map.att_filter_hz, self.rate_hz, n)
-            att_ax = 4 if lb.loop == "lateral_x" else 3
-            tilt_sign = 1.0 if lb.loop == "lateral_x" else -1.0
-        v_prev = lb.qvel[:, ax].copy()
         for k in range(T):
             tk = t[k]
             tg = float(target(tk)) if target is not None else 0.0
             r = float(reference(tk)) if reference is not None else 0.0
-            y_true = lb._measure_true()
-            acc = (lb.qvel[:, ax] - v_prev) / Ts
-            v_prev = lb.qvel[:, ax].copy()
-            s = chain(y_true - tg, acc, k)
-            if self.mode == "kf":
-                y = s.y_kf
-                u = np.asarray(controller(r - y), dtype=np.float64)
-            elif self.mode == "camera":
-                y = s.y_cam
-                u = np.asarray(controller(r - y), dtype=np.float64)
-            else:
+            stage.target_m = tg
+            y_true, y = lb.measure(k)
+            s = stage.reading
+            if self.mode == "scheduled":
                 active = sw.update(s.innovation, s.innovation_std, s.new_frame, r - s.y_cam)
                 if sw.to_ibvs.any():
                     # the target moved: the filter's position is wrong, its
                     # velocity and bias are not; restart it on the camera
-                    chain.kf.reposition(s.y_cam_raw, sw.to_ibvs)
+                    stage.chain.kf.reposition(s.y_cam_raw, sw.to_ibvs)
                 y = np.where(active == 1, s.y_kf, s.y_cam)
                 u = np.asarray(controller(r - s.y_kf, r - s.y_cam, active), dtype=np.float64)
                 out["sched"][:, k] = active
-            att_u = None
-            if lateral:
-                # the paper's vehicle saturates the lateral controller output (tilt)
-                lim = lb.vehicle.lateral_limit_rad
-                theta_ref = np.clip(tilt_sign * lb.map.cmd_scale * u, -lim, lim)
-                att_u = att(theta_ref - lb.qpos[:, att_ax])
-            lb._apply(u, att_u)
-            f = np.zeros((n, 3))
-            if lb.force_fx:
-                f = sum(e.force(tk, lb.qvel[:, :3]) for e in lb.force_fx)
-                lb.xfrc[:, 1, :3] = f
+            else:
+                u = np.asarray(controller(r - y), dtype=np.float64)
+            f = lb.actuate(u, k)
+            f_ax = 0.0 if f is None else f[:, min(ax, 2)]
             for key, val in (("r", r), ("y", y), ("u", u), ("yt", y_true - tg), ("ycam", s.y_cam),
                              ("ykf", s.y_kf), ("tgt", tg), ("pos", y_true), ("nu", s.innovation),
-                             ("f", f[:, min(ax, 2)])):
+                             ("f", f_ax)):
                 out[key][:, k] = val
             if QP is not None:
                 QP[:, k] = lb.qpos
-            try:
-                lb.advance()
-            except Exception as exc:  # a MuJoCo simulation error ends the faulty episodes
-                for i in getattr(exc, "ids", range(n)):
-                    if not diverged[i]:
-                        diverged[i] = True
-                        reasons[int(i)] = f"MuJoCo error at t={tk:.3f}s: {exc}"
+            lb.step(k)
             if RF is not None:
                 RF[:, k] = lb.actuator_force
-            bad = ~np.isfinite(lb.qpos).all(axis=1) | (np.abs(lb.qpos[:, :3]) > 1e3).any(axis=1)
-            bad |= (np.abs(lb.qpos[:, 3:5]) > 1.2).any(axis=1)
-            for i in np.flatnonzero(bad & ~diverged):
-                reasons[int(i)] = f"runaway state at t={tk:.3f}s"
-            new = bad & ~diverged
-            diverged |= bad
-            if new.any():
-                lb.qpos[new] = 0.0
-                lb.qvel[new] = 0.0
+        diverged, reasons = lb.diverged.copy(), dict(lb.reasons)
         for arr in (*out.values(), QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
-        return VisionResult(t, out["r"], out["y"], out["u"], out["yt"], diverged, reasons, None, self.seed, QP, RF,
-                            y_cam=out["ycam"], y_kf=out["ykf"], target=out["tgt"], pos=out["pos"],
+        return VisionResult(t=t, r=out["r"], y=out["y"], u=out["u"], y_true=out["yt"], diverged=diverged,
+                            reasons=reasons, switched=None, seed=self.seed, qpos=QP, rotor_force=RF, y_cam=out["ycam"], y_kf=out["ykf"], target=out["tgt"], pos=out["pos"],
                             schedule=out["sched"] if self.mode == "scheduled" else None,
                             innovation=out["nu"], force=out["f"])

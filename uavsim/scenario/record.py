@@ -33,6 +33,7 @@ import numpy as np
 
 from uavsim.control.relay import READING
 from uavsim.errors import UserError
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN
 
 __all__ = ["write_recording", "write_run", "read_run", "run_path", "APP_ID", "TIMELINE", "RUN_FORMAT"]
 
@@ -107,7 +108,7 @@ def _controller(result: dict[str, Any], name: str) -> dict[str, Any]:
         relay = (src or {}).get("relay") or {}
         np_mrft = (relay.get("tau_obs") or 0) > 0 or (relay.get("a_n") or 0) > 0
         # reading: the relay reading it ran with (uavsim.control.relay; absent in older runs: 1)
-        return {"kind": "np-mrft" if np_mrft else "mrft", "beta": relay.get("beta"), "h": relay.get("h"),
+        return {"kind": NP_MRFT_RUN if np_mrft else MRFT_RUN, "beta": relay.get("beta"), "h": relay.get("h"),
                 "tau_obs": relay.get("tau_obs"), "a_n": relay.get("a_n"), "bias": 0.0, "reading": READING}
     loop = head if head != "test" else (result.get("test") or {}).get("loop")
     gains = result["loops"].get(loop) or {}

@@ -40,7 +40,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
-from uavsim.errors import UserError
+from uavsim.errors import UserError, short_repr, type_name
 
 __all__ = ["KINDS", "SchemaError", "model_of", "json_schema", "validate", "parse_toml", "load_toml"]
 
@@ -144,16 +144,8 @@ def load_toml(path: str | os.PathLike, kind: str) -> dict[str, Any]:
 # Error messages: the first problem, ``key.path: what``, with the closest key for an unknown one
 
 
-def _short(v: Any) -> str:
-    from uavsim.formats.session import _short as short
-
-    return short(v)
-
-
-def _type_word(v: Any) -> str:
-    from uavsim.formats.session import _type_name
-
-    return _type_name(v)
+_short = short_repr
+_type_word = type_name
 
 
 def _unwrap(ann: Any) -> Any:

@@ -5,15 +5,21 @@ and their parameters, effects and their ranges), so that the schema and the
 reader cannot drift apart. The reader keeps its own checks in front of this one
 for their hints (the line of a CSV row, "not a key of a mrft run"); this schema
 is what it enforces as a whole, and what ``uavsim schema session`` prints.
+
+The effect tables follow the registered vocabulary effects
+(:mod:`uavsim.model.effects.vocabulary`): ``SessionFile`` is rebuilt when the
+vocabulary changes (an effect registered after this module was imported).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, model_validator
 
 from uavsim.formats import session as fmt
+from uavsim.model.effects import vocabulary
 from uavsim.schema._base import Beta, Finite, NonNegative, Positive, Table, number_type, tagged
 
 # ranges of the run parameters (validate_run_params); a parameter not named here is any finite number
@@ -39,12 +45,11 @@ def _run(kind: str) -> type[Table]:
 
 
 def _effect(name: str) -> type[Table]:
-    fields = {p: (number_type(fmt._EFFECT_RANGES.get(p, "any")), ...) for p in fmt.EFFECT_PARAMS[name]}
+    fields = {p: (number_type(vocabulary.PARAM_RANGES.get(p, "any")), ...) for p in fmt.EFFECT_PARAMS[name]}
     return tagged(f"Effect_{name}", "name", name, fields, doc=f"a {name} effect")
 
 
 Run = Annotated[Union[tuple(_run(k) for k in fmt.RUN_KINDS)], Field(discriminator="kind")]  # noqa: UP007
-Effect = Annotated[Union[tuple(_effect(n) for n in fmt.EFFECT_PARAMS)], Field(discriminator="name")]  # noqa: UP007
 
 
 class Model(Table):
@@ -64,23 +69,39 @@ class Model(Table):
         return self
 
 
-class SessionFile(Table):
-    """A flight session's session.toml: the loop, the controller rate, the runs (one CSV each),
-    and optionally the loop's model and the effects the gap workflow added."""
+def _session_file(effect: Any) -> type[Table]:
+    class SessionFile(Table):
+        """A flight session's session.toml: the loop, the controller rate, the runs (one CSV each),
+        and optionally the loop's model and the effects the gap workflow added."""
 
-    format: str = Field(description=f"format version, {fmt.FORMAT!r}")
-    loop: Literal[fmt.LOOPS]  # type: ignore[valid-type]
-    control_rate_hz: Positive = Field(description="rate of the controller's samples, Hz")
-    model: Model | None = None
-    runs: list[Run] = Field(min_length=1)
-    effects: list[Effect] = Field(default_factory=list)
+        format: str = Field(description=f"format version, {fmt.FORMAT!r}")
+        loop: Literal[fmt.LOOPS]  # type: ignore[valid-type]
+        control_rate_hz: Positive = Field(description="rate of the controller's samples, Hz")
+        model: Model | None = None
+        runs: list[Run] = Field(min_length=1)
+        effects: list[effect] = Field(default_factory=list)  # type: ignore[valid-type]
 
-    @model_validator(mode="after")
-    def _t2(self):
-        if self.model is not None:
-            lateral = self.loop in fmt.LATERAL_LOOPS
-            if lateral and self.model.T2 is None:
-                raise ValueError(f"model: missing key 'T2' (required for the {self.loop} loop)")
-            if not lateral and self.model.T2 is not None:
-                raise ValueError(f"model: 'T2' is not a key of the {self.loop} loop model (lateral loops only)")
-        return self
+        @model_validator(mode="after")
+        def _t2(self):
+            if self.model is not None:
+                lateral = self.loop in fmt.LATERAL_LOOPS
+                if lateral and self.model.T2 is None:
+                    raise ValueError(f"model: missing key 'T2' (required for the {self.loop} loop)")
+                if not lateral and self.model.T2 is not None:
+                    raise ValueError(f"model: 'T2' is not a key of the {self.loop} loop model (lateral loops only)")
+            return self
+
+    return SessionFile
+
+
+@functools.lru_cache(maxsize=4)
+def _for_vocabulary(words: tuple[tuple[str, tuple[str, ...]], ...]) -> type[Table]:
+    effect = Annotated[Union[tuple(_effect(n) for n, _ in words)], Field(discriminator="name")]  # noqa: UP007
+    return _session_file(effect)
+
+
+def __getattr__(name: str) -> Any:
+    # SessionFile of the vocabulary as registered now
+    if name == "SessionFile":
+        return _for_vocabulary(tuple((n, tuple((q, vocabulary.PARAM_RANGES[q]) for q in p)) for n, p in fmt.EFFECT_PARAMS.items()))
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -17,6 +17,16 @@ Episodes that diverge (NaN, a runaway state, a MuJoCo error) are flagged in
 ``res.diverged`` with a reason, and their rows are NaN: they are never
 returned as data (``res.valid()`` keeps the others).
 
+``run`` is one loop over a small public stepping API that other episode
+loops (the vision scenarios, replays) use as well, so that the physics, the
+actuation and the divergence checks exist once:
+
+    rng = lb.start(T)                   # effects reset from the seed; or start(T, measurement=stage)
+    for k in range(T):
+        y_true, y = lb.measure(k)       # true output, and what the measurement stage makes of it
+        lb.actuate(controller(r[k] - y), k)   # command effects, attitude loop, holds, forces
+        lb.step(k)                      # physics over one control period, divergence checks
+
 With ``record_state=True`` the result also holds the vehicle's joint
 positions ``qpos`` and the six rotor thrusts ``rotor_force``, (n, T, 6) at the
 control rate, for replays (``uavsim.viz``); it is off by default, and then
@@ -28,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -45,7 +56,7 @@ from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
 _HOLD_OMEGA = 2.0  # rad/s
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EpisodeResult:
     """Recorded episodes, at the control rate.
 
@@ -115,6 +126,33 @@ def _out_delay_weights(out_delay: np.ndarray, dt: float) -> tuple[np.ndarray, np
     w_step = np.where(far, 0.0, a - b)
     w_out = np.where(far, 1.0, b)
     return w_now, w_step, w_out
+
+
+class MeasurementStage(Protocol):
+    """What the controller sees of the loop's true output: reset once per run, then once per control sample."""
+
+    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
+        """Start ``n`` episodes at control rate ``rate_hz``, drawing from ``rng``."""
+
+    def __call__(self, y_true: np.ndarray, k: int) -> np.ndarray:
+        """The measurement at sample ``k`` from the true output, (n,) -> (n,)."""
+
+
+class EffectChain:
+    """The default measurement stage: the measurement effects, applied in order."""
+
+    def __init__(self, effects: Sequence[Effect]) -> None:
+        self.effects = list(effects)
+
+    def reset(self, n: int, rate_hz: float, rng: np.random.Generator) -> None:
+        for e in self.effects:
+            e.reset(n, rate_hz, rng)
+
+    def __call__(self, y_true: np.ndarray, k: int) -> np.ndarray:
+        y = y_true
+        for e in self.effects:
+            y = e(y, k)
+        return y
 
 
 def _split_effects(effects: Sequence[Effect]):
@@ -286,18 +324,122 @@ class LoopBatch:
             return None, None
         return np.empty((self.n, T, 6)), np.empty((self.n, T, self.model.nu))
 
-    def _measure_true(self) -> np.ndarray:
+    def measure_true(self) -> np.ndarray:
+        """The tested output of every episode now (m or rad), (n,): the state, or the delayed sensor of lateral loops."""
         if not self.lateral:
             return self.qpos[:, self.map.axis].copy()
         w_now, w_step, w_out = self._out_weights
         return (w_now * self.qpos[:, self.map.axis] + w_step * self.sensordata[:, self._sensor_step]
                 + w_out * self.sensordata[:, self._sensor_out])
 
+    # -- the episode loop, one control sample at a time ----------------------
+    def start(self, T: int, measurement: MeasurementStage | None = None, *,
+              tilt_limit_rad: float | None = None) -> np.random.Generator:
+        """Begin a run of ``T`` control samples from the current state.
+
+        Parameters
+        ----------
+        T : int
+            Control samples of the run (``t = k / rate_hz``).
+        measurement : MeasurementStage, optional
+            Replaces the measurement effects (default: they, in order, as :class:`EffectChain`).
+        tilt_limit_rad : float, optional
+            Lateral loops: clip the tilt reference of the inner attitude loop to +-this (none by default).
+
+        Returns
+        -------
+        numpy Generator
+            The batch's generator, seeded with ``seed``, after the measurement stage, the command
+            effects and the force effects drew from it (in that order).
+        """
+        n = self.n
+        rng = np.random.default_rng(self.seed)
+        self.stage = EffectChain(self.measurement_fx) if measurement is None else measurement
+        self.stage.reset(n, self.rate_hz, rng)
+        for e in self.command_fx:
+            e.reset(n, self.rate_hz, rng)
+        drag = self.map.damping[:, :3]
+        for e in self.force_fx:
+            e.reset(n, self.rate_hz, rng, drag)
+        self.t = np.arange(T) / self.rate_hz
+        self.diverged = np.zeros(n, dtype=bool)
+        self.reasons: dict[int, str] = {}
+        self._tilt_limit = tilt_limit_rad
+        if self.lateral:
+            from uavsim.control.pd import PD
+
+            self._att = PD(self.map.att_kp, self.map.att_kd, self.map.att_filter_hz, self.rate_hz, n)
+            self._att_ax = 4 if self.loop == "lateral_x" else 3
+            self._tilt_sign = 1.0 if self.loop == "lateral_x" else -1.0
+        self._bounds = np.full(self.qpos.shape[1], np.finfo(np.float64).max)
+        self._bounds[:3], self._bounds[3:5] = 1e3, 1.2
+        return rng
+
+    def measure(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The true output and the measurement stage's view of it at sample ``k``: ``(y_true, y)``, (n,) each."""
+        y_true = self.measure_true()
+        return y_true, self.stage(y_true, k)
+
+    def actuate(self, u: np.ndarray, k: int) -> np.ndarray | None:
+        """Hold command ``u`` (n,) over sample ``k``.
+
+        The command effects act on it, a lateral loop's inner attitude PD turns it into a tilt
+        (clipped as :meth:`start` says), the untested axes get their holds, and the force effects
+        set the external force. Returns that force (n, 3), N, or None without force effects.
+        """
+        u_act = u
+        for e in self.command_fx:
+            u_act = e(u_act, k)
+        att_u = None
+        if self.lateral:
+            theta_ref = self._tilt_sign * self.map.cmd_scale * u_act
+            if self._tilt_limit is not None:
+                theta_ref = np.clip(theta_ref, -self._tilt_limit, self._tilt_limit)
+            att_u = self._att(theta_ref - self.qpos[:, self._att_ax])
+        self._apply(u_act, att_u)
+        if not self.force_fx:
+            return None
+        f = sum(e.force(self.t[k], self.qvel[:, :3]) for e in self.force_fx)
+        self.xfrc[:, 1, :3] = f
+        return f
+
+    def step(self, k: int) -> np.ndarray:
+        """Advance the physics over control period ``k`` and check every episode.
+
+        An episode diverges on a MuJoCo error, a position beyond 1 km, a tilt beyond 1.2 rad or
+        any non-finite coordinate; it is flagged in ``diverged`` with its reason in ``reasons``
+        and parked at rest so that it cannot poison the batch. Returns the episodes that
+        diverged at this step, (n,) bool.
+        """
+        t = self.t[k]
+        diverged, reasons = self.diverged, self.reasons
+        failed = np.zeros(self.n, dtype=bool)
+        try:
+            self.advance()
+        except mjbatch.SimulationError as exc:
+            for i in exc.ids:
+                if not diverged[i]:
+                    failed[i] = True
+                    reasons[int(i)] = f"MuJoCo error at t={t:.3f}s: {self.batch.error(int(i))}"
+            diverged |= failed
+        # one pass: a NaN fails every comparison, an infinity the last column's huge bound
+        bad = ~(np.abs(self.qpos) <= self._bounds).all(axis=1)
+        new = bad & ~diverged
+        if bad.any():
+            for i in np.flatnonzero(new):
+                reasons[int(i)] = f"runaway state at t={t:.3f}s"
+            diverged |= bad
+        if new.any():
+            self.qpos[new] = 0.0
+            self.qvel[new] = 0.0
+        return new | failed
+
     def run(
         self,
         controller: Callable[[np.ndarray], np.ndarray],
         duration_s: float,
         reference: np.ndarray | Callable[[float], np.ndarray] | None = None,
+        measurement: MeasurementStage | None = None,
     ) -> EpisodeResult:
         """Run every episode for ``duration_s`` with ``controller`` closing the loop.
 
@@ -309,17 +451,14 @@ class LoopBatch:
             Episode length, s; ``T = round(duration_s * rate_hz)`` samples.
         reference : None, (T,), (n, T) or callable t -> (n,)
             The reference; zero by default.
+        measurement : MeasurementStage, optional
+            Replaces the measurement effects (:meth:`start`).
         """
         if not (math.isfinite(duration_s) and duration_s > 0):
             raise UserError(f"episode length must be > 0 s, got {duration_s}")
         n, T = self.n, int(round(duration_s * self.rate_hz))
-        rng = np.random.default_rng(self.seed)
-        for e in self.measurement_fx + self.command_fx:
-            e.reset(n, self.rate_hz, rng)
-        drag = self.map.damping[:, :3]
-        for e in self.force_fx:
-            e.reset(n, self.rate_hz, rng, drag)
-        t = np.arange(T) / self.rate_hz
+        self.start(T, measurement)
+        t = self.t
         if reference is None:
             zero = np.zeros(n)
             ref = lambda k: zero  # noqa: E731
@@ -332,64 +471,22 @@ class LoopBatch:
         QP, RF = self.state_buffers(T)
         SW = np.zeros((n, T), dtype=bool)
         has_sw = hasattr(controller, "switched")
-        diverged = np.zeros(n, dtype=bool)
-        reasons: dict[int, str] = {}
-        if self.lateral:
-            from uavsim.control.pd import PD
-
-            att = PD(self.map.att_kp, self.map.att_kd, self.map.att_filter_hz, self.rate_hz, n)
-            att_ax = 4 if self.loop == "lateral_x" else 3
-            tilt_sign = 1.0 if self.loop == "lateral_x" else -1.0
-        limit = 1e3
-        bounds = np.full(self.qpos.shape[1], np.finfo(np.float64).max)
-        bounds[:3], bounds[3:5] = limit, 1.2
         for k in range(T):
-            y_true = self._measure_true()
-            y = y_true
-            for e in self.measurement_fx:
-                y = e(y, k)
+            y_true, y = self.measure(k)
             r = ref(k)
             u = np.asarray(controller(r - y), dtype=np.float64)
-            u_act = u
-            for e in self.command_fx:
-                u_act = e(u_act, k)
-            att_u = None
-            if self.lateral:
-                theta_ref = tilt_sign * self.map.cmd_scale * u_act
-                att_u = att(theta_ref - self.qpos[:, att_ax])
-            self._apply(u_act, att_u)
-            if self.force_fx:
-                f = sum(e.force(t[k], self.qvel[:, :3]) for e in self.force_fx)
-                self.xfrc[:, 1, :3] = f
+            self.actuate(u, k)
             R_out[:, k], Y[:, k], U[:, k], Yt[:, k] = r, y, u, y_true
             if has_sw:
                 SW[:, k] = controller.switched
             if QP is not None:
                 QP[:, k] = self.qpos
-            try:
-                self.advance()
-            except mjbatch.SimulationError as exc:
-                for i in exc.ids:
-                    if not diverged[i]:
-                        diverged[i] = True
-                        reasons[int(i)] = f"MuJoCo error at t={t[k]:.3f}s: {self.batch.error(int(i))}"
+            self.step(k)
             if RF is not None:
                 RF[:, k] = self.actuator_force
-            # one pass: a position beyond 1e3 or a tilt beyond 1.2 rad, or any non-finite coordinate
-            # (a NaN fails every comparison, an infinity the last column's huge bound)
-            bad = ~(np.abs(self.qpos) <= bounds).all(axis=1)
-            if bad.any():
-                new = bad & ~diverged
-                for i in np.flatnonzero(new):
-                    reasons[int(i)] = f"runaway state at t={t[k]:.3f}s"
-                diverged |= bad
-            else:
-                new = bad
-            if new.any():
-                # park diverged episodes so that they cannot poison the batch
-                self.qpos[new] = 0.0
-                self.qvel[new] = 0.0
+        diverged = self.diverged
         for arr in (R_out, Y, U, Yt, QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
-        return EpisodeResult(t, R_out, Y, U, Yt, diverged, reasons, SW if has_sw else None, self.seed, QP, RF)
+        return EpisodeResult(t=t, r=R_out, y=Y, u=U, y_true=Yt, diverged=diverged.copy(), reasons=dict(self.reasons),
+                             switched=SW if has_sw else None, seed=self.seed, qpos=QP, rotor_force=RF)

@@ -12,9 +12,25 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.formats.session import ModelSpec, Run, RunData, RunSpec, Session, write_session
+from uavsim.formats.session import (
+    MRFT_RUN,
+    NP_MRFT_RUN,
+    ModelSpec,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    write_session,
+)
 from uavsim.lumped.params import LumpedParams
 from uavsim.sim.runner import EpisodeResult
+
+#: lumped parameters of ``uavsim sim relay``'s loops where the command line gives none
+DEMO_PARAMS: dict[str, dict[str, float]] = {
+    "altitude": dict(K=1.0, T_prop=0.1, T1=0.8, tau=0.02),
+    "roll": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01),
+    "pitch": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01),
+}
 
 
 def relay_session(
@@ -36,7 +52,7 @@ def relay_session(
     np_mrft = tau_obs > 0 or a_n > 0
     spec = RunSpec(
         file=file,
-        kind="np-mrft" if np_mrft else "mrft",
+        kind=NP_MRFT_RUN if np_mrft else MRFT_RUN,
         beta=float(beta),
         h=float(h),
         tau_obs=float(tau_obs) if np_mrft else None,
@@ -60,8 +76,6 @@ def relay_session(
 def episode_to_session(res: EpisodeResult, i: int, loop: str, args, path: str | Path) -> Path:
     """Write episode ``i`` as a session folder at ``path`` (CLI helper)."""
     kw = {k: getattr(args, k) for k in ("K", "T_prop", "T1", "tau")}
-    from uavsim.cli.sim_cmd import _DEFAULTS
-
-    p = LumpedParams(loop, **{k: (v if v is not None else _DEFAULTS[loop][k]) for k, v in kw.items()})
+    p = LumpedParams(loop, **{k: (v if v is not None else DEMO_PARAMS[loop][k]) for k, v in kw.items()})
     s = relay_session(res, i, p, beta=args.beta, h=args.h, rate_hz=args.rate, tau_obs=args.tau_obs, a_n=args.a_n)
     return write_session(s, path)

@@ -46,7 +46,15 @@ import numpy as np
 from uavsim.control.pd import PD
 from uavsim.control.relay import NPMRFT
 from uavsim.errors import UserError
-from uavsim.formats.session import Run, RunData, RunSpec, Session, write_session
+from uavsim.formats.session import (
+    NP_MRFT_RUN,
+    STEP_RUN,
+    Run,
+    RunData,
+    RunSpec,
+    Session,
+    write_session,
+)
 from uavsim.lumped import mrft_prediction
 from uavsim.noise.analysis import rising_edges
 from uavsim.noise.estimate import NoiseEstimate, estimate_noise, recommend
@@ -82,7 +90,7 @@ def session_name(seed: int) -> str:
     return f"tb_{seed:05d}"
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SessionPlan:
     """Everything drawn from the seed before the flight."""
 
@@ -215,7 +223,8 @@ def plan_session(seed: int, kinds: tuple[str, ...] = KINDS, loop: str | None = N
         scales = replace(scales, noise_std=_probe_noise(v, loop, gains, seed))
     effects = [draw_effect(n, re, scales) for n in names]
     nominal = {"K": p.K, "T_prop": p.T_prop, "T1": p.T1, "tau": p.tau}
-    return SessionPlan(int(seed), kind, loop, v, effects, nominal, scales, float(h), gains)
+    return SessionPlan(seed=int(seed), kind=kind, loop=loop, vehicle=v, effects=effects, nominal=nominal,
+                       scales=scales, h=float(h), step_gains=gains)
 
 
 def _oscillates(u: np.ndarray) -> bool:
@@ -280,9 +289,9 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
     step_s = STEP_TIME_S + float(np.clip(8 * s.period_s, 4.0, 8.0)) * time_scale
     h = plan.h
     specs = [
-        RunSpec("np_b073_h1.csv", "np-mrft", beta=-0.73, h=h, tau_obs=settings[-0.73][0], a_n=settings[-0.73][1]),
-        RunSpec("np_b073_h3.csv", "np-mrft", beta=-0.73, h=3 * h, tau_obs=settings[-0.73][0], a_n=settings[-0.73][1]),
-        RunSpec("np_b030_h1.csv", "np-mrft", beta=-0.3, h=h, tau_obs=settings[-0.3][0], a_n=settings[-0.3][1]),
+        RunSpec("np_b073_h1.csv", NP_MRFT_RUN, beta=-0.73, h=h, tau_obs=settings[-0.73][0], a_n=settings[-0.73][1]),
+        RunSpec("np_b073_h3.csv", NP_MRFT_RUN, beta=-0.73, h=3 * h, tau_obs=settings[-0.73][0], a_n=settings[-0.73][1]),
+        RunSpec("np_b030_h1.csv", NP_MRFT_RUN, beta=-0.3, h=h, tau_obs=settings[-0.3][0], a_n=settings[-0.3][1]),
         RunSpec("step_small.csv", "step", kp=gk["kp"], kd=gk["kd"], derivative_filter_hz=gk["derivative_filter_hz"],
                 step=round(2 * s.amp, 9), step_time=STEP_TIME_S),
         RunSpec("step_large.csv", "step", kp=gk["kp"], kd=gk["kd"], derivative_filter_hz=gk["derivative_filter_hz"],
@@ -292,7 +301,7 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
     for spec in specs:
         fl.fly(hold(), BETWEEN_RUNS_S * time_scale)
         K_by_run[spec.file] = lumped_equivalent(v, loop, soc=fl.battery.soc).K
-        if spec.kind == "step":
+        if spec.kind == STEP_RUN:
             ctrl, dur = PD(spec.kp, spec.kd, spec.derivative_filter_hz, RATE_HZ, 1), step_s
             ref = (lambda st: (lambda t: st if t >= STEP_TIME_S else 0.0))(spec.step)
         else:
@@ -305,7 +314,7 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
                "saturated_share": float(rec.saturated.mean()) if rec.t.size else 0.0,
                "battery_V_mean": float(np.mean(rec.voltage_V)) if rec.t.size else float("nan"),
                "true_output_ptp": float(np.ptp(rec.y_true)) if rec.t.size else 0.0}  # fmt: skip
-        if spec.kind == "step":
+        if spec.kind == STEP_RUN:
             row["bounded"] = bool(not crashed and np.max(np.abs(rec.y_true)) < 5 * abs(spec.step))
         else:
             row["oscillates"] = bool(not crashed and _oscillates(rec.u))

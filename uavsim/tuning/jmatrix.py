@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from uavsim.lumped.frequency import freq_response_batch
-from uavsim.lumped.ise import _grid, loop_is_stable_batch
+from uavsim.lumped.ise import frequency_grid, loop_is_stable_batch
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 
 __all__ = ["J_MAX", "ise_normalized", "j_matrix", "deterioration", "symmetrize"]
@@ -84,7 +84,7 @@ def ise_normalized(
             Nf_j = np.append(Nf, DERIVATIVE_FILTER_RATIO * proc_omega[j])
         else:
             Td_j, Nf_j = Td, Nf
-        w = _grid(np.array([proc_omega[j]]), n, span)  # (1, W)
+        w = frequency_grid(np.array([proc_omega[j]]), n, span)  # (1, W)
         sub = _pick(params, j)
         Gw = freq_response_batch(family, np.concatenate([w, [[proc_omega[j]]]], axis=1), K=1.0, **sub)[0]
         G = Gw[:-1] / np.abs(Gw[-1])  # normalized: |G(j Omega_j)| = 1

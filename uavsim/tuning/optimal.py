@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import _p_args, mrft_prediction_batch
+from uavsim.lumped.frequency import batch_args, mrft_prediction_batch
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 from uavsim.lumped.params import LumpedParams, loop_family
 from uavsim.lumped.sampled import SampledProcess, lift, sampled_ise
@@ -354,7 +354,7 @@ def optimal_pd(p: LumpedParams, rate_hz: float = DEFAULT_RATE_HZ, rule: TuningRu
     Raises ``UserError`` if no PD stabilizes it.
     """
     p.check()
-    g = optimal_gains(p.family, rate_hz, rule=rule, **_p_args(p))
+    g = optimal_gains(p.family, rate_hz, rule=rule, **batch_args(p))
     if not np.isfinite(g.ise[0]):
         raise UserError(f"{p.loop}: no stable PD found at {rate_hz:g} Hz")
     return g

@@ -40,14 +40,18 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.lumped.frequency import _p_args, check_beta, freq_response_batch, mrft_prediction_batch
+from uavsim.lumped.frequency import (  # DEFAULT_BETA: MRFT parameter of the flight tests
+    DEFAULT_BETA,
+    batch_args,
+    check_beta,
+    freq_response_batch,
+    mrft_prediction_batch,
+)
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 from uavsim.lumped.params import LumpedParams
 
 __all__ = ["DEFAULT_BETA", "DEFAULT_PM_DEG", "rule_constants", "TuningRule", "Gains"]
 
-#: MRFT parameter of the flight tests (paper: altitude beta_z0 = -0.72/-0.73)
-DEFAULT_BETA = -0.73
 #: phase margin of the homogeneous rule used in flight, deg
 DEFAULT_PM_DEG = 20.0
 
@@ -157,7 +161,7 @@ class TuningRule:
     def gains(self, p: LumpedParams) -> Gains:
         """Rule gains for one process (for its gain K)."""
         p.check()
-        g = self.gains_batch(p.family, **_p_args(p))
+        g = self.gains_batch(p.family, **batch_args(p))
         c1, c3 = self.constants
         return Gains(
             kp=float(g["kp"][0]),

@@ -48,7 +48,7 @@ import numpy as np
 
 from uavsim.control.relay import MRFT, NPMRFT, READING
 from uavsim.errors import UserError
-from uavsim.formats.session import Run, Session
+from uavsim.formats.session import MRFT_RUN, RELAY_KINDS, Run, Session
 from uavsim.viz.sources import (
     ReplayRun,
     dataset_runs,
@@ -67,9 +67,6 @@ APP_ID = "uavsim_replay"
 TIMELINE = "time"
 #: File written in the session folder when neither a file nor a viewer is asked for.
 DEFAULT_RRD = "replay.rrd"
-
-_RELAY_KINDS = ("np-mrft", "mrft")
-
 
 @dataclass
 class RelayReplay:
@@ -112,7 +109,7 @@ def make_relay(run: Run, rate_hz: float, reading: int = READING) -> NPMRFT:
         The relay reading of the session's format version (``Session.reading``).
     """
     s = run.spec
-    if s.kind not in _RELAY_KINDS:
+    if s.kind not in RELAY_KINDS:
         raise UserError(f"{run.spec.file}: run kind {s.kind!r} is not a relay run")
     return _relay(s.kind, _params(run, reading), rate_hz)
 
@@ -124,7 +121,7 @@ def _params(run: Run, reading: int) -> dict[str, Any]:
 
 def _relay(kind: str, p: dict[str, Any], rate_hz: float) -> NPMRFT:
     reading = int(p.get("reading", READING))
-    if kind == "mrft":
+    if kind == MRFT_RUN:
         return MRFT(p["beta"], p["h"], rate_hz, 1, bias=p.get("bias") or 0.0, reading=reading)
     return NPMRFT(p["beta"], p["h"], p["tau_obs"] or 0.0, p["a_n"] or 0.0, rate_hz, 1, bias=p.get("bias") or 0.0,
                   reading=reading)
@@ -288,7 +285,7 @@ def _log_run(rec: Any, run: ReplayRun) -> dict[str, Any]:
         rec.log(f"{base}/signals/{name}", rr.SeriesLines(names=name), static=True)
         rows[f"{base}/signals/{name}"] = _send_series(rec, f"{base}/signals/{name}", t[:m], v[:m])
 
-    relay = run.relay is not None and run.kind in _RELAY_KINDS
+    relay = run.relay is not None and run.kind in RELAY_KINDS
     bias = float(run.relay.get("bias") or 0.0) if relay else 0.0
     fin = np.isfinite(run.u) & np.isfinite(e)
     sw = sign_changes(np.where(fin, run.u, bias), bias)

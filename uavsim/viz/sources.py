@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN, RELAY_KINDS
 
 #: physics steps tried when re-simulating a session (``uavsim sim relay`` default first)
 SESSION_DT = (0.0005, 0.001)
@@ -131,7 +132,7 @@ def detect_source(path: str | Path) -> str:
 # -- sessions ---------------------------------------------------------------------------------------
 
 def _relay_of(spec: Any, reading: int) -> dict[str, Any] | None:
-    if spec.kind not in ("np-mrft", "mrft"):
+    if spec.kind not in RELAY_KINDS:
         return None
     return {"beta": spec.beta, "h": spec.h, "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias": spec.bias,
             "reading": reading}
@@ -167,7 +168,7 @@ def _resimulate_session_run(session: Any, rr: ReplayRun) -> ReplayRun:
             lb = LoopBatch([params], dt=dt, rate_hz=rr.rate_hz, y0=rr.y[:1], record_state=True)
         except UserError:
             continue
-        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"], reading=s["reading"]) if rr.kind == "mrft"
+        relay = (MRFT(s["beta"], s["h"], rr.rate_hz, 1, bias=s["bias"], reading=s["reading"]) if rr.kind == MRFT_RUN
                  else NPMRFT(s["beta"], s["h"], s["tau_obs"], s["a_n"], rr.rate_hz, 1, bias=s["bias"],
                              reading=s["reading"]))
         res = lb.run(relay, rr.t.size / rr.rate_hz)
@@ -255,13 +256,12 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
     from uavsim.data import preprocess
     from uavsim.data.generate import (
         RefiningRelay,
-        _effects,
-        episode_controller,
+        chunk_params,
+        episode_batch,
         load_family_grid,
         make_plan,
     )
     from uavsim.data.recipe import parse_recipe
-    from uavsim.sim.runner import LoopBatch
 
     a = ds.attrs
     try:
@@ -298,11 +298,8 @@ def _resimulate_chunk(ds: Any, row: int) -> tuple[dict[str, np.ndarray] | None, 
         return None, f"the rebuilt plan's draws differ from the file's ({', '.join(bad)})"
     r = plan.recipe
     dur = float(plan.durations[ci])
-    samples = int(round(dur * r.episodes.rate_hz))
-    params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[i]])), K=float(plan.K[i])) for i in ids]
-    lb = LoopBatch(params, dt=r.episodes.dt, rate_hz=r.episodes.rate_hz, effects=_effects(plan, ids, samples),
-                   seed=int(plan.sim_seeds[ci]), y0=plan.y0[ids], record_state=True)
-    ctrl = episode_controller(plan, ids, ci, int(plan.sim_seeds[ci]))
+    lb, ctrl = episode_batch(chunk_params(plan, ids), plan, ids, dur, int(plan.sim_seeds[ci]), chunk=ci,
+                             record_state=True)
     relay_first = ctrl.history[0] if isinstance(ctrl, RefiningRelay) else (ctrl.tau_obs.copy(), ctrl.a_n.copy())
     res = lb.run(ctrl, dur)
     j = int(np.flatnonzero(ids == e)[0])
@@ -423,7 +420,7 @@ def dataset_runs(path: str | Path, cls: int = 0, episode: int = 0, *, resimulate
         # the episode ran its first settings, then each refined run's (see uavsim.data.generate)
         relay["tau_obs"], relay["a_n"] = sim["first"]
         relay["retunes"] = sim["retunes"]
-    run = ReplayRun(stem=stem, label=label, kind="np-mrft", t=t, r=np.zeros(T), y=y, u=u, rate_hz=rate,
+    run = ReplayRun(stem=stem, label=label, kind=NP_MRFT_RUN, t=t, r=np.zeros(T), y=y, u=u, rate_hz=rate,
                     relay=relay if (sim is not None or raw is not None) else None,
                     y_true=sim["y_true"] if sim is not None else None,
                     qpos=sim["qpos"] if sim is not None else None,
@@ -483,7 +480,7 @@ def scenario_runs(path: str | Path, run: str | None = None) -> tuple[list[Replay
         ctrl = ep.get("controller") or {}
         kind = ctrl.get("kind", "pd")
         relay = None
-        if kind in ("np-mrft", "mrft"):
+        if kind in RELAY_KINDS:
             relay = {k: ctrl.get(k) for k in ("beta", "h", "tau_obs", "a_n", "bias")}
             relay["bias"] = relay["bias"] or 0.0
             relay["reading"] = int(ctrl.get("reading", 1))  # runs recorded before reading 2 ran reading 1

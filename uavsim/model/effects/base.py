@@ -23,14 +23,24 @@ generator given to ``reset``, so that an episode is reproducible from its seed.
     eff = Quantization(step=0.01)                      # or step=np.array([0.01, 0.02, ...])
     eff.reset(n=8, rate_hz=200.0, rng=np.random.default_rng(0))
     y_seen = eff(y_true, k)      # (8,) -> (8,)
+
+An effect of the flight session format's vocabulary also carries a
+:class:`SessionTerm` (``session = SessionTerm(...)``): its one parameter, that
+parameter's range, the value that leaves the loop unchanged, its place in the
+format's table and in the simulated chain, the gap workflow's search grid and
+the hidden-effect generator's draw. The session format, its schema, the gap
+workflow and the hidden-effect sessions read the vocabulary from there
+(:mod:`uavsim.model.effects.vocabulary`), so a new vocabulary effect is one
+new file.
 """
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
+from typing import ClassVar
 
 import numpy as np
 
@@ -40,6 +50,55 @@ from uavsim.errors import UserError
 Param = float | np.ndarray
 
 REGISTRY: dict[str, type[Effect]] = {}
+
+#: a session parameter's allowed range: strictly positive, non-negative, any finite value
+RANGES = (">0", ">=0", "any")
+
+
+@dataclass(frozen=True)
+class SessionTerm:
+    """How a vocabulary effect appears in the session format, the gap workflow and the hidden-effect sessions.
+
+    Attributes
+    ----------
+    param : str
+        Its one parameter: the key in ``session.toml`` and the effect's field of that name
+        (parameter names are unique across the vocabulary).
+    range : str
+        The parameter's allowed range in a session, one of :data:`RANGES`.
+    identity : float
+        The value that leaves the loop unchanged (``nan`` with ``identity_is_rate``).
+    table : int
+        Position in the format's effect table (``none`` is 0).
+    chain : int
+        Position in the simulated chain, as the session generator applies the effects:
+        model effects first, then command effects, then measurement effects.
+    grid : callable (scales, noise_std, rate_hz, n) -> ndarray
+        The gap workflow's coarse search values for a session with ``scales`` (a mapping with
+        ``period`` s, ``umax``, ``h_min``, ``h_max`` command units, ``amp`` output units),
+        the model's noise std, the control rate (Hz) and grid size ``n``.
+    draw : callable (rng, period, h, amp, noise_std, rate_hz) -> dict
+        A random observable magnitude for a hidden-effect session: MRFT period (s), smallest
+        relay amplitude, oscillation amplitude, noise std and control rate; returns ``{param: value}``.
+    cap : callable rate_hz -> float, optional
+        The largest value worth fitting at a control rate (values above it act as the cap).
+    identity_is_rate : bool
+        The identity value is the control rate (a frame rate equal to it holds nothing).
+    """
+
+    param: str
+    range: str
+    identity: float
+    table: int
+    chain: int
+    grid: Callable[[Mapping[str, float], float, float, int], np.ndarray]
+    draw: Callable[[np.random.Generator, float, float, float, float, float], dict[str, float]]
+    cap: Callable[[float], float] | None = None
+    identity_is_rate: bool = False
+
+    def __post_init__(self) -> None:
+        if self.range not in RANGES:
+            raise ValueError(f"session range {self.range!r} is not one of {RANGES}")
 
 
 def register(cls: type[Effect]) -> type[Effect]:
@@ -117,6 +176,8 @@ class Effect(ABC):
     name = "effect"
     #: "model", "command", "measurement" or "force"
     target = "measurement"
+    #: the effect's entry in the session vocabulary; None: not a session effect (wind, pull)
+    session: ClassVar[SessionTerm | None] = None
 
     def __post_init__(self) -> None:
         # per-episode parameters (numeric lists, tuples, arrays) become float64 arrays once, here;
@@ -160,6 +221,15 @@ class SignalEffect(Effect):
     @abstractmethod
     def __call__(self, x: np.ndarray, k: int) -> np.ndarray:
         """Transform sample ``k`` of the signal, ``x`` of shape (n,); return (n,)."""
+
+    def trace(self, m: int, T: int, rate_hz: float, rng: np.random.Generator) -> np.ndarray:
+        """The signal an additive noise model adds to ``m`` episodes of ``T`` samples, shape (T, m), drawn at once.
+
+        Vectorized over time (dataset generation precomputes whole episodes), with the same
+        model, parameters and statistics as the per-sample ``__call__``, not the same draws.
+        Only additive models have one; the others raise ``TypeError``.
+        """
+        raise TypeError(f"no precomputed trace for {type(self).__name__}")
 
 
 def make_effect(name: str, **params: Param) -> Effect:

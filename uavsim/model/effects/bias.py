@@ -4,7 +4,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register
+from uavsim.model.effects.base import Param, SessionTerm, SignalEffect, batched, finite, register
+
+
+def _grid(sc, noise_std, rate_hz, n):
+    half = np.geomspace(0.03, 0.8, n // 2 + 1) * sc["h_min"]
+    return np.concatenate([-half[::-1], half])
+
+
+def _draw(rng, period, h, amp, noise_std, rate_hz):
+    return {"offset": float(rng.choice([-1, 1]) * rng.uniform(0.15, 0.4) * h)}
 
 
 @register
@@ -14,6 +23,11 @@ class Bias(SignalEffect):
 
     offset: Param = 0.0
     name = "bias"
+    session = SessionTerm(
+        param="offset", range="any", identity=0.0, table=7, chain=7,
+        grid=_grid,
+        draw=_draw,
+    )
     target = "command"
 
     def validate(self) -> None:

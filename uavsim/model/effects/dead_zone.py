@@ -4,7 +4,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    finite,
+    register,
+    require_each,
+)
 
 
 @register
@@ -14,6 +22,11 @@ class DeadZone(SignalEffect):
 
     width: Param = 0.0
     name = "dead_zone"
+    session = SessionTerm(
+        param="width", range=">=0", identity=0.0, table=5, chain=5,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.03, 0.8, n) * sc["h_min"],
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"width": rng.uniform(0.15, 0.45) * h},
+    )
     target = "command"
 
     def validate(self) -> None:

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Effect, Param, finite, register, require_each
+from uavsim.model.effects.base import Effect, Param, SessionTerm, finite, register, require_each
 
 
 @register
@@ -14,6 +14,11 @@ class Delay(Effect):
 
     delay: Param = 0.0
     name = "delay"
+    session = SessionTerm(
+        param="delay", range=">=0", identity=0.0, table=1, chain=1,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.01 * sc["period"], 0.3 * sc["period"], n),
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"delay": rng.uniform(0.04, 0.12) * period},
+    )
     target = "model"
 
     def validate(self) -> None:

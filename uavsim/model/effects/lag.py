@@ -13,7 +13,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    finite,
+    register,
+    require_each,
+)
 
 
 @register
@@ -23,6 +31,11 @@ class Lag(SignalEffect):
 
     T: Param = 0.05
     name = "lag"
+    session = SessionTerm(
+        param="T", range=">0", identity=0.0, table=2, chain=3,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.01 * sc["period"], 0.3 * sc["period"], n),
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"T": rng.uniform(0.04, 0.12) * period},
+    )
     target = "command"
 
     def validate(self) -> None:

@@ -1,11 +1,25 @@
 """2nd-order Butterworth low-pass on the measurement, at the control rate."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, number, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    number,
+    register,
+    require_each,
+)
+
+
+def _draw(rng, period, h, amp, noise_std, rate_hz):
+    f0 = 1.0 / period
+    return {"cutoff_hz": float(min(f0 / rng.uniform(0.12, 0.35), 0.4 * rate_hz))}
 
 
 @register
@@ -20,6 +34,12 @@ class Lowpass(SignalEffect):
 
     cutoff_hz: Param = 20.0
     name = "lowpass"
+    session = SessionTerm(
+        param="cutoff_hz", range=">0", identity=math.inf, table=10, chain=11,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(min(0.3 / sc["period"], 0.4 * rate_hz), 0.45 * rate_hz, n),
+        draw=_draw,
+        cap=lambda rate_hz: 0.45 * rate_hz,
+    )
     target = "measurement"
 
     def validate(self) -> None:

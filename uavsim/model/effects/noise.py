@@ -4,7 +4,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    finite,
+    register,
+    require_each,
+)
+
+
+def _grid(sc, noise_std, rate_hz, n):
+    base = noise_std if noise_std > 0 else 0.01 * sc["amp"]
+    return np.geomspace(0.3, 8.0, n) * base
 
 
 @register
@@ -14,6 +27,11 @@ class Noise(SignalEffect):
 
     std: Param = 0.0
     name = "noise"
+    session = SessionTerm(
+        param="std", range=">=0", identity=0.0, table=11, chain=8,
+        grid=_grid,
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"std": rng.uniform(1.5, 4.0) * noise_std},
+    )
     target = "measurement"
 
     def validate(self) -> None:
@@ -26,3 +44,6 @@ class Noise(SignalEffect):
 
     def __call__(self, y: np.ndarray, k: int) -> np.ndarray:
         return y + self._std * self.rng.standard_normal(y.shape)
+
+    def trace(self, m, T, rate_hz, rng):
+        return np.broadcast_to(np.asarray(self.std, dtype=np.float64), (m,)) * rng.standard_normal((T, m))

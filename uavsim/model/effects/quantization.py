@@ -4,7 +4,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    finite,
+    register,
+    require_each,
+)
 
 
 @register
@@ -14,6 +22,11 @@ class Quantization(SignalEffect):
 
     step: Param = 0.01
     name = "quantization"
+    session = SessionTerm(
+        param="step", range=">0", identity=0.0, table=8, chain=9,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.02, 0.6, n) * sc["amp"],
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"step": rng.uniform(0.1, 0.3) * amp},
+    )
     target = "measurement"
 
     def validate(self) -> None:

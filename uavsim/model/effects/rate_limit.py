@@ -1,10 +1,24 @@
 """Actuator slew-rate limit: the command moves at most ``rate`` per second."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, number, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    number,
+    register,
+    require_each,
+)
+
+
+def _draw(rng, period, h, amp, noise_std, rate_hz):
+    # a full 2*(2h) swing takes 5-15% of the period
+    return {"rate": 4 * h / (rng.uniform(0.05, 0.15) * period)}
 
 
 @register
@@ -14,6 +28,11 @@ class RateLimit(SignalEffect):
 
     rate: Param = 1.0
     name = "rate_limit"
+    session = SessionTerm(
+        param="rate", range=">0", identity=math.inf, table=6, chain=4,
+        grid=lambda sc, noise_std, rate_hz, n: 4 * sc["h_max"] / (np.geomspace(0.01, 0.4, n) * sc["period"]),
+        draw=_draw,
+    )
     target = "command"
 
     def validate(self) -> None:

@@ -1,10 +1,24 @@
 """Measurement sampled at a camera frame rate and held between frames."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, finite, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    finite,
+    register,
+    require_each,
+)
+
+
+def _draw(rng, period, h, amp, noise_std, rate_hz):
+    lo, hi = 15.0, min(0.5 * rate_hz, 1.0 / (0.03 * period))
+    return {"rate_hz": float(math.exp(rng.uniform(math.log(lo), math.log(max(hi, lo * 1.01)))))}
 
 
 @register
@@ -20,6 +34,13 @@ class SampleHold(SignalEffect):
 
     rate_hz: Param = 60.0
     name = "sample_hold"
+    session = SessionTerm(
+        param="rate_hz", range=">0", identity=math.nan, table=9, chain=10,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(4.0, rate_hz / 1.5, n),
+        draw=_draw,
+        cap=lambda rate_hz: rate_hz,  # a frame rate above the control rate holds nothing
+        identity_is_rate=True,
+    )
     target = "measurement"
 
     def validate(self) -> None:

@@ -1,10 +1,19 @@
 """Actuator command clipped to [-limit, limit]."""
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.model.effects.base import Param, SignalEffect, batched, number, register, require_each
+from uavsim.model.effects.base import (
+    Param,
+    SessionTerm,
+    SignalEffect,
+    batched,
+    number,
+    register,
+    require_each,
+)
 
 
 @register
@@ -14,6 +23,11 @@ class Saturation(SignalEffect):
 
     limit: Param = 1.0
     name = "saturation"
+    session = SessionTerm(
+        param="limit", range=">0", identity=math.inf, table=4, chain=6,
+        grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.15, 1.0, n) * sc["umax"],
+        draw=lambda rng, period, h, amp, noise_std, rate_hz: {"limit": rng.uniform(0.5, 0.85) * 2 * h},
+    )
     target = "command"
 
     def validate(self) -> None:

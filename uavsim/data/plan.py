@@ -1,0 +1,190 @@
+"""The plan of a training set: every episode's draws, fixed before anything runs.
+
+All per-episode draws (gain factor, relay bias, noise kind and level, initial
+output, randomized effect parameters) come from one
+``np.random.default_rng(recipe.seed)`` in a fixed order; episodes are sorted by
+class period and cut into chunks, each with its own simulation seed
+(:func:`chunk_seed`). See :mod:`uavsim.data.generate`.
+
+    plan = make_plan(recipe, load_family_grid(recipe))
+    plan.n, plan.chunks[0], plan.sim_seeds[0]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from uavsim.data import preprocess
+from uavsim.data.recipe import Recipe
+from uavsim.errors import UserError
+from uavsim.noise.estimate import (
+    tau_obs_max,
+)
+
+#: extra length over ``cycles`` slowest-class periods: noise and NP-MRFT lengthen cycles
+CYCLE_MARGIN = 1.15
+#: s: the hover segment whose noise estimate gives a recommended episode its first settings
+HOVER_S = 10.0
+#: of a refinement stage: the transient skipped before its samples are analysed
+STAGE_SETTLE = 0.25
+
+
+@dataclass(kw_only=True)
+class Plan:
+    """Every episode of one dataset file, drawn before anything runs.
+
+    Per-episode arrays have shape (n,): first the ``n_train`` training episodes in
+    class-major order (episode ``e`` is episode ``e % per_class`` of label
+    ``e // per_class``), then one reference episode per class (K = 1, no bias, no
+    noise, mid-range effects) whose cycle goes to the class table as the cycle at
+    this control rate (``period_sim``, ``amplitude_sim``). ``tau_obs`` and ``a_n`` are
+    NaN with recommended settings (each episode finds its own, see :func:`episode_controller`);
+    ``stage_s`` is the length of each refinement stage of a chunk (0 with fixed settings).
+    """
+
+    recipe: Recipe
+    grid: Any  # uavsim.tuning.grid.Grid (a lateral sub-grid for lateral files)
+    att_class: int | None
+    class_index: np.ndarray  # (n_classes,) grid class of each label
+    beta: float
+    L: int
+    labels: np.ndarray
+    K: np.ndarray
+    bias: np.ndarray
+    noise_kind: np.ndarray  # int8, index into RECIPE_NOISE_KINDS order of recipe.noise.kinds
+    noise_level: np.ndarray
+    y0: np.ndarray
+    tau_obs: np.ndarray
+    a_n: np.ndarray
+    a0: np.ndarray  # expected amplitude, output units (grid amplitude * K * h)
+    effect_params: dict[str, np.ndarray]  # "<i>_<name>/<param>" -> (n,) randomized values
+    chunks: list[np.ndarray]  # episode ids of each chunk
+    durations: np.ndarray  # (n_chunks,) s
+    sim_seeds: np.ndarray  # (n_chunks,) uint32
+    n_train: int = 0
+    stage_s: np.ndarray | None = None  # (n_chunks,) s, refinement stage length (recommended settings)
+
+    @property
+    def n(self) -> int:
+        return len(self.labels)
+
+
+def chunk_seed(seed: int, index: int, att_class: int | None = None) -> int:
+    """Seed of chunk ``index``'s LoopBatch (noise realizations), from the recipe seed."""
+    entropy = [seed, index] if att_class is None else [seed, att_class, index]
+    return int(np.random.SeedSequence(entropy).generate_state(1)[0])
+
+
+def load_family_grid(recipe: Recipe):
+    """The recipe's grid (a UserError naming the missing file when it is not built)."""
+    from uavsim.tuning.grid import load_grid
+
+    return load_grid(recipe.loop)
+
+
+def _sub_grid(recipe: Recipe, grid, att_class: int | None):
+    if recipe.loop == "lateral":
+        if att_class is None:
+            raise UserError("a lateral plan needs an attitude class")
+        return grid.lateral(att_class)
+    return grid
+
+
+def att_classes_of(recipe: Recipe, grid) -> list[int | None]:
+    """The attitude classes a lateral recipe makes files for ([None] for other loops)."""
+    if recipe.loop != "lateral":
+        return [None]
+    n_att = len(grid.sub)
+    chosen = list(recipe.att_classes) if recipe.att_classes is not None else list(range(n_att))
+    for a in chosen:
+        if not 0 <= a < n_att:
+            raise UserError(f"{recipe.source}: attitude class {a} out of range 0..{n_att - 1}")
+    return chosen
+
+
+def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
+    """Draw every episode of the recipe (see module docstring); pure function of its inputs."""
+    g = _sub_grid(recipe, grid, att_class)
+    if recipe.classes is not None:
+        bad = [c for c in recipe.classes if not 0 <= c < g.n]
+        if bad:
+            raise UserError(f"{recipe.source}: classes {bad} out of range 0..{g.n - 1}")
+        class_index = np.asarray(recipe.classes, dtype=np.int64)
+    else:
+        class_index = np.arange(g.n, dtype=np.int64)
+    beta = recipe.test.beta if recipe.test.beta is not None else float(g.beta)
+    E, h = recipe.episodes, recipe.test.h
+    nc = len(class_index)
+    labels = np.repeat(np.arange(nc, dtype=np.int32), E.per_class)
+    n = len(labels)
+    rng = np.random.default_rng(recipe.seed if att_class is None else [recipe.seed, att_class])
+    lo, hi = recipe.randomize.K
+    K = np.exp(rng.uniform(math.log(lo), math.log(hi), n))
+    bias = rng.uniform(-recipe.randomize.bias, recipe.randomize.bias, n) * h
+    w = np.asarray(recipe.noise.weights, dtype=float)
+    kind = rng.choice(len(w), size=n, p=w / w.sum()).astype(np.int8)
+    level = rng.uniform(*recipe.noise.level, n)
+    none = np.array([recipe.noise.kinds[k] == "none" for k in kind], dtype=bool)
+    level[none] = 0.0
+    y0u = rng.uniform(-1.0, 1.0, n)
+    effect_params: dict[str, np.ndarray] = {}
+    for i, fx in enumerate(recipe.effects):
+        for k, v in fx.params.items():
+            if isinstance(v, tuple):
+                effect_params[f"{i}_{fx.name}/{k}"] = rng.uniform(v[0], v[1], n)
+    cls = class_index[labels]
+    a0 = np.asarray(g.amplitude, dtype=float)[cls] * K * h
+    y0 = y0u * recipe.randomize.y0 * a0
+    period = np.asarray(g.period, dtype=float)
+    fixed = recipe.test.settings == "fixed"
+    # fixed settings: tau_obs no longer than beta allows for the expected cycle ...
+    cap = np.array([tau_obs_max(beta, float(period[c]), E.rate_hz) for c in class_index])
+    # ... but at least one sample: with tau_obs = 0 a just-set extremum confirms itself and
+    # the relay chatters (plain MRFT confirms one sample later too)
+    cls_tau = np.maximum(np.minimum(recipe.test.tau_obs, cap), 1.0 / E.rate_hz) if fixed else np.full(nc, np.nan)
+    tau_obs = cls_tau[labels]
+    a_n = recipe.test.a_n * level * a0 if fixed else np.full(n, np.nan)
+    # Reference episodes, one per class, after the training ones: the class at K = 1 with no
+    # bias and no noise. The grid's period and amplitude are the continuous-time cycle; at
+    # 200 Hz sampling lengthens the fastest classes' cycles by up to ~25% and their amplitude
+    # by up to ~65%, so gain recovery (K_hat = amplitude / h / class amplitude) needs the
+    # cycle as simulated at the data's control rate.
+    ref = np.arange(nc, dtype=np.int32)
+    labels = np.concatenate([labels, ref])
+    K = np.concatenate([K, np.ones(nc)])
+    bias, level, y0 = (np.concatenate([v, np.zeros(nc)]) for v in (bias, level, y0))
+    a_n = np.concatenate([a_n, np.zeros(nc) if fixed else np.full(nc, np.nan)])
+    kind = np.concatenate([kind, np.zeros(nc, np.int8)])
+    tau_obs = np.concatenate([tau_obs, cls_tau])
+    for i, fx in enumerate(recipe.effects):
+        for k, v in fx.params.items():
+            if isinstance(v, tuple):
+                key = f"{i}_{fx.name}/{k}"
+                effect_params[key] = np.concatenate([effect_params[key], np.full(nc, 0.5 * (v[0] + v[1]))])
+    cls = class_index[labels]
+    a0 = np.asarray(g.amplitude, dtype=float)[cls] * K * h
+    # chunks: episodes by class period (stable), so a chunk's length follows similar classes
+    chunks = []
+    for lo_id, hi_id in ((0, n), (n, n + nc)):
+        order = lo_id + np.argsort(period[cls[lo_id:hi_id]], kind="stable")
+        chunks += [np.sort(order[i:i + E.chunk]) for i in range(0, hi_id - lo_id, E.chunk)]
+    stages = 0 if fixed else recipe.test.refinements
+    if E.cycles is not None:
+        slowest = np.array([float(period[cls[c]].max()) for c in chunks])
+        stage_s = np.ceil(recipe.test.refine_cycles * CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
+        main = np.ceil(E.cycles * CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
+    else:
+        stage_s = np.full(len(chunks), float(E.duration_s))
+        main = np.full(len(chunks), float(E.duration_s))
+    stage_s = stage_s if stages else np.zeros(len(chunks))
+    durations = main + stages * stage_s
+    sim_seeds = np.array([chunk_seed(recipe.seed, i, att_class) for i in range(len(chunks))], dtype=np.uint32)
+    L = preprocess.input_length(grid)
+    return Plan(recipe=recipe, grid=g, att_class=att_class, class_index=class_index, beta=beta, L=L, labels=labels,
+                K=K, bias=bias, noise_kind=kind, noise_level=level, y0=y0, tau_obs=tau_obs, a_n=a_n, a0=a0,
+                effect_params=effect_params, chunks=chunks, durations=durations, sim_seeds=sim_seeds, n_train=n,
+                stage_s=stage_s)
