@@ -11,3 +11,7 @@ class UserError(Exception):
     """Bad input; the message says what is wrong and where, on one line."""
 
     exit_code = 2
+
+
+class NoOscillation(UserError):
+    """A relay run holds no usable oscillation (too short, no switching, clipped, switched on noise)."""
