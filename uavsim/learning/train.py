@@ -310,23 +310,28 @@ def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str
 
 
 def gain_metrics(pred: np.ndarray, data: TrainData, idx: np.ndarray) -> dict[str, float]:
-    """Error of the gains identification picks, ``|kp / kp_true - 1|`` and the same for kd (median, p95).
+    """Error of the gains identification answers, ``|kp / kp_true - 1|`` and the same for kd (median, p95).
 
-    For samples ``idx`` predicted as ``pred``: the rule on the predicted class's model fitted to
-    the sample's measured response (``uavsim.learning.identify``), against the true class's
-    rule gains over the true ``K``. Empty when the set has no response (older files) or is
-    lateral.
+    For samples ``idx`` predicted as ``pred``: the table's robust PD of the predicted class over
+    the gain fitted to the sample's measured response with that class's lags (``uavsim.ident``),
+    against the true class's over the true ``K``. Empty when the set has no response or no table
+    (older files) or is lateral.
     """
-    from uavsim.learning.identify import fit_response, model_gains, rule_of
+    from uavsim.data.preprocess import process_response
+    from uavsim.lumped.frequency import freq_response_batch
 
     loop = data.attrs.get("loop")
-    if len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude"):
+    c = data.classes
+    if (len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude")
+            or "table_robust_kp" not in c):
         return {}
-    model = fit_response(data.response[idx], data.response_period[idx], pred, data.classes, loop)
-    g = model_gains(model, loop, *rule_of({"loop": loop, "beta": data.attrs.get("beta")}))
+    w = 2 * np.pi / data.response_period[idx]
+    G0 = freq_response_batch(loop, w[:, None], K=1.0, T_prop=c["T_prop"][pred], T1=c["T1"][pred], tau=0.0)[:, 0]
+    K_hat = np.abs(process_response(data.response[idx], data.response_period[idx])) / np.abs(G0)
     out = {}
     for k in ("kp", "kd"):
-        e = np.abs(g[k] / (np.asarray(data.classes[k], dtype=np.float64)[data.labels[idx]] / data.K[idx]) - 1.0)
+        col = np.asarray(c[f"table_robust_{k}"], dtype=np.float64)
+        e = np.abs((col[pred] / K_hat) / (col[data.labels[idx]] / data.K[idx]) - 1.0)
         out.update({f"{k}_err_median": float(np.median(e)), f"{k}_err_p95": float(np.percentile(e, 95))})
     return out
 
@@ -410,8 +415,16 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
         cycles = int(tomllib.loads(str(a.get("recipe", ""))).get("preprocess", {}).get("cycles", 1))
     except (tomllib.TOMLDecodeError, TypeError, ValueError):
         pass
+    from uavsim.learning.bundle import bundle_section
+
+    cyc = int(a.get("cycles_per_input", cycles))
+    ident = bundle_section(loop=a.get("loop", recipe.loop), grid_hash=str(a.get("grid_hash", "")),
+                           rate_hz=float(a.get("rate_hz") or 200.0), beta=a.get("beta"),
+                           input_length=cfg.input_length, cycles=cyc,
+                           att_class=int(a["att_class"]) if a.get("att_class") is not None else None)
     return {
-        "cycles": int(a.get("cycles_per_input", cycles)),
+        "identification": ident,
+        "cycles": cyc,
         "name": recipe.name,
         "loop": a.get("loop", recipe.loop),
         "grid_hash": a.get("grid_hash", ""),
