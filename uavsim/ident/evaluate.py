@@ -29,10 +29,13 @@ In the same run, on the same episodes (controls and alternatives):
 * ``rule_on_truth``: the grid's rule applied to the true process (its 10 Omega filter);
 * ``answer_x0.85``: the answer's ``kp`` and ``kd`` times 0.85 (a plain detuning,
   which a metric that cannot tell must not pass);
-* ``table_K_fit``: the network's class with ``K`` fitted at the measured frequency
-  instead of ``K_hat``; ``table_optimum``: the class's ISE optimum instead of the
-  robust answer; ``fitted_optimum``: the optimum of the fitted model; ``K_true``: the
-  network's class with the true ``K`` (what gain estimation costs).
+* alternatives on the network's class: ``table_K_mrft`` (the gain estimated at the
+  class's MRFT point, ``K = |G(jw)| / table_gain_at_omega``, instead of fitted at the
+  measured frequency), ``table_optimum`` (the class's ISE optimum instead of the
+  robust answer), ``fitted_optimum`` (the optimum of the fitted model),
+  ``optimum_when_off_grid`` (that optimum only where the fitted delay is off the
+  class's: ``optimum="auto"``), ``K_true`` (the true ``K``); and the oracle rows with
+  the MRFT-point estimate (``*_K_mrft``).
 
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
@@ -68,6 +71,8 @@ __all__ = ["LEVELS", "DETUNE", "GOALS", "EvalSpec", "draw_processes", "noise_pla
 LEVELS = (0.0, 0.05, 0.10, 0.15, 0.20)
 #: the detuning control: the answer's gains times this
 DETUNE = 0.85
+#: the network's most likely classes (with their softmax) recorded per episode
+TOP_RECORDED = 8
 #: the goals: inner loops (median, p95, max of J, unstable, refused fraction), lateral (p95, unstable)
 GOALS = {"inner": {"median": 1.03, "p95": 1.10, "max": 1.5, "unstable": 0, "refused_fraction": 0.02},
          "lateral": {"p95": 1.20, "unstable": 0}}
@@ -231,7 +236,8 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     n = len(sim["y"])
     rate, h = recipe.episodes.rate_hz, recipe.test.h
     res = {"answers": [None] * n, "why": [None] * n, "response": np.full(n, complex("nan")),
-           "response_period": np.full(n, np.nan), "ms": np.full(n, np.nan), "lead": np.full(n, np.nan)}
+           "response_period": np.full(n, np.nan), "ms": np.full(n, np.nan), "lead": np.full(n, np.nan),
+           "top": [None] * n}
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         try:
@@ -246,6 +252,10 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
+        a = bundle.predictor.activations(f.x)[0].astype(np.float64)
+        top = np.argsort(-a)[:TOP_RECORDED]
+        p = np.exp(a[top] - a.max()) / np.exp(a - a.max()).sum()
+        res["top"][i] = [[int(c), float(q)] for c, q in zip(top, p, strict=True)]
         res["lead"][i] = phase_lead(f.response, f.response_period, bundle.rule.beta, bundle.input_rate_hz)
     return res
 
@@ -297,7 +307,7 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
         J["table_best_class" + name][meas] = Jall.min(axis=1)
         J["table_nearest_class" + name][meas] = Jall[np.arange(meas.size), near]
     # alternatives on the identified episodes: the network's class with other gain choices
-    for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum"):
+    for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum", "optimum_when_off_grid"):
         J[k] = nan()
     if gi.size:
         c = np.array([ans[i]["class"] for i in gi])
@@ -315,6 +325,11 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
             opt = model_optimum(bundle, model, start=table_gains(bundle, c, K_hat))
         J["fitted_optimum"][gi] = np.where(np.isfinite(opt.ise), _score(
             fam, rate, truth, q_opt, gi, opt.kp, opt.kd, opt.derivative_filter_hz), _FAIL)
+        # optimum="auto": the fitted optimum where the fitted model is off the grid, else the table
+        off = np.array([bool(ans[i]["off_grid"]) for i in gi])
+        tab = table_gains(bundle, c, K_hat)
+        J["optimum_when_off_grid"][gi] = np.where(off, J["fitted_optimum"][gi], _score(
+            fam, rate, truth, q_opt, gi, tab["kp"], tab["kd"], tab["derivative_filter_hz"]))
     return J
 
 
@@ -369,7 +384,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,
-                    "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "truth": truth, "sim": sim, "answers": ids["answers"]})
+                    "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "response": ids["response"],
+                    "response_period": ids["response_period"], "top": ids["top"], "truth": truth, "sim": sim, "answers": ids["answers"]})
         log(f"{'attitude class ' + str(a) + ': ' if a is not None else ''}identified {int((~refused).sum())}/"
             f"{spec.n} ({time.perf_counter() - t0:.0f} s)")
     cat = lambda k: np.concatenate([p[k] for p in per])  # noqa: E731
@@ -425,10 +441,20 @@ def _episodes(per: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          "noise_kind": int(p["kind"][i]), "noise_level": float(p["level"][i]),
                          "tau_obs": float(p["sim"]["tau_obs"][i]), "a_n": float(p["sim"]["a_n"][i]),
                          "bias": float(p["sim"]["bias"][i]), "phase_lead_deg": float(p["lead"][i]),
+                         "response": [float(p["response"][i].real), float(p["response"][i].imag)],
+                         "response_period": float(p["response_period"][i]), "network_top": p["top"][i],
                          "refused": p["why"][i], "class": None if a is None else a["class"],
                          "K_hat": None if a is None else a["table"]["K_hat"],
-                         "J": {k: (None if not np.isfinite(v[i]) else float(v[i])) for k, v in p["J"].items()}})
+                         "J": {k: None if a is None and k.startswith("answer") else _json_j(v[i])
+                               for k, v in p["J"].items()}})
     return rows
+
+
+def _json_j(j: float) -> float | str | None:
+    """A J in JSON: the number, ``"unstable"`` (inf), or null (not computed: no cycle to measure)."""
+    if np.isnan(j):
+        return None
+    return float(j) if np.isfinite(j) else "unstable"
 
 
 def markdown(res: dict[str, Any]) -> str:
