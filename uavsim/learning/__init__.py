@@ -11,6 +11,7 @@ Modules: ``model`` (network), ``loss`` (J-weighted softmax cross-entropy),
 ``train`` (recipes, checkpoints, resume, early stopping), ``export``
 (weights.npz, ONNX and TorchScript artefacts; ``Predictor`` runs weights.npz with
 numpy alone), ``bundle`` (the identification section of an export's meta.json),
-``figures`` (identification and training PNGs). Only ``model``, ``loss`` and
+``figures`` (identification and training PNGs), ``decision`` (the class decision: least
+expected J under the softmax). Only ``model``, ``loss`` and
 ``train`` need torch (``pip install 'uavsim[train]'``).
 """

@@ -3,7 +3,8 @@
 Written by the trainer beside the network (``uavsim.learning.export``), read by
 ``uavsim.ident.bundle``: the control rate of the class table's PDs, the grid's
 rule, the preprocessing settings, and for a lateral network the attitude loop
-its sub-grid closes. The class table itself (with the grid's table of PDs at
+its sub-grid closes, and the class decision (least expected J over the cost matrix
+``J`` that ``weights.npz`` carries: ``uavsim.learning.decision``). The class table itself (with the grid's table of PDs at
 the control rate, ``table_*`` columns) is the dataset's, copied as ``classes``.
 
     from uavsim.learning.bundle import bundle_section
@@ -54,4 +55,6 @@ def bundle_section(*, loop: str, grid_hash: str, rate_hz: float, beta: float | N
                      "gain_scale": float(rule.gain_scale)},
             "preprocess": {"input_rate_hz": INPUT_RATE_HZ, "input_length": int(input_length), "cycles": int(cycles),
                            "channels": list(CHANNELS)},
-            "attitude": att}
+            "attitude": att,
+            "class_decision": {"decision": "bayes", "cost": "weights.npz J: rows class answered, columns true "
+                               "class, clipped to [1, 1000]", "belief": "softmax(a / T), T: weights.npz temperature"}}

@@ -6,8 +6,12 @@ optimizer. Training follows the authors' code (NOTES.md section 2): Adam, lr
 multiplied by ``lr_decay`` every ``lr_step_epochs``, the J-weighted softmax loss
 (``uavsim.learning.loss``). A seeded ``val_fraction`` of the set is held out for
 early stopping on the validation **mean J** (the closed-loop cost of the
-predicted class for the true one), not on accuracy: two wrong classes are not
-equally wrong.
+answered class for the true one), not on accuracy: two wrong classes are not
+equally wrong. The answered class is the one identification answers: least
+expected J under the network's softmax (``uavsim.learning.decision``, Bayes); the
+metrics of the most likely class (argmax) are reported beside it (``*_argmax``).
+The belief's temperature is fitted to the validation set each epoch; the
+exported ``weights.npz`` carries the set's ``J`` and the best epoch's temperature.
 
 Every epoch writes ``OUT/checkpoint.pt`` (model, optimizer, schedule, RNG
 states, history; atomically), so ``--resume`` continues exactly where an
@@ -41,6 +45,7 @@ import numpy as np
 import torch
 
 from uavsim.errors import UserError
+from uavsim.learning.decision import decide, fit_temperature
 from uavsim.learning.export import export_model
 from uavsim.learning.loss import J_CLIP, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
@@ -374,16 +379,14 @@ def _atomic_save(obj: Any, path: Path) -> None:
             os.unlink(tmp)
 
 
-def _predict(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> np.ndarray:
-    """Predicted classes (N,)."""
+def _activations(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> np.ndarray:
+    """The network's activations (N, n_classes) float32."""
     net.eval()
-    cls = []
+    act = []
     with torch.inference_mode():
         for i in range(0, X.shape[0], batch):
-            cls.append(net(X[i : i + batch].to(device)).argmax(1).cpu())
-    if not cls:
-        return np.zeros(0, dtype=np.int64)
-    return torch.cat(cls).numpy()
+            act.append(net(X[i : i + batch].to(device)).float().cpu())
+    return torch.cat(act).numpy()
 
 
 def _progress(iterable, **kw):
@@ -445,9 +448,20 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
 
 
 def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData,
-                 device: torch.device) -> dict[str, float]:
-    pred = _predict(net, X, device)
-    return {**class_metrics(pred, data.labels[idx], data.J), **gain_metrics(pred, data, idx)}
+                 device: torch.device, temperature: float | None = None) -> dict[str, float]:
+    """Metrics of identification's decision (Bayes over ``J``), and of argmax beside them.
+
+    ``temperature``: the belief's (``uavsim.learning.decision``); None fits it to this set
+    (validation: the one exported with the best epoch).
+    """
+    if X.shape[0] == 0:
+        return class_metrics(np.zeros(0, np.int64), data.labels[idx], data.J)
+    act = _activations(net, X, device)
+    T = fit_temperature(act, data.labels[idx]) if temperature is None else float(temperature)
+    pred = decide(act, data.J, decision="bayes", temperature=T).cls
+    arg = class_metrics(act.argmax(axis=1), data.labels[idx], data.J)
+    return {**class_metrics(pred, data.labels[idx], data.J), **gain_metrics(pred, data, idx),
+            **{f"{k}_argmax": arg[k] for k in ("top1", "mean_J", "p95_J")}, "temperature": T}
 
 
 def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dict[str, Any]:
@@ -560,7 +574,10 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     net.cpu()
     meta = _class_meta(data, recipe, cfg)
     meta.update({"best_epoch": best["epoch"], "val": {k[4:]: v for k, v in best.items() if k.startswith("val_")}})
-    export_model(net, meta, out)
+    if "temperature" not in meta["val"]:  # a best epoch from a checkpoint written before the decision existed
+        meta["val"] = _val_metrics(net, Xva, va_idx, data, torch.device("cpu"))
+    T_best = float(meta["val"]["temperature"])
+    export_model(net, meta, out, arrays={"J": data.J, "temperature": np.float64(T_best)})
     from uavsim.learning.figures import training_curves_png
 
     training_curves_png(history, out / CURVES, title=f"{recipe.name}: {cfg.n_classes} {meta['loop']} classes, "
@@ -572,7 +589,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         "best_epoch": best["epoch"], "train_time_s": train_s, "device": device.type,
         "threads": torch.get_num_threads(), "seed": seed, "val": meta["val"], "out": str(out),
         "dataset": recipe.dataset, "curves": str(out / CURVES),
-        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1") if k in h} for h in history],
+        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1", "val_mean_J_argmax") if k in h}
+                    for h in history],
     }
     if recipe.test_dataset and not Path(recipe.test_dataset).is_file():
         # a missing held-out set must not throw away a finished training run
@@ -585,7 +603,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         if gi is not None and gt is not None and not np.array_equal(gi, gt):
             raise UserError(f"{recipe.test_dataset}: class subset differs from the training set's")
         report["test"] = _val_metrics(net, torch.from_numpy(test.X), np.arange(len(test.labels)), test,
-                                      torch.device("cpu"))
+                                      torch.device("cpu"), temperature=T_best)
         report["test_dataset"] = recipe.test_dataset
     Path(out / REPORT).write_text(json.dumps(report, indent=1))
     return report
