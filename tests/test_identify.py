@@ -67,6 +67,18 @@ def test_identifies_class_gain_and_table_gains(setup):
     assert ans["gains"]["derivative_filter_hz"] == pytest.approx(t.derivative_filter_hz[c])
     assert ans["gains_table"] == ans["gains"] and "gains_optimum" not in ans and ans["off_grid"] is False
     assert ans["oscillation"]["period"] == pytest.approx(g.period[c], rel=0.05)
+    # the class of least expected J over the bundle's cost matrix, which is the training set's J
+    from uavsim.data.h5 import open_dataset
+    from uavsim.ident.bundle import load_bundle
+
+    b = load_bundle(setup["model"])
+    assert np.array_equal(b.cost, open_dataset(setup["tmp"] / "three.h5").J) and 0 < b.temperature < 50
+    d = ans["decision"]
+    assert d["decision"] == "bayes" and d["class_argmax"] == TRUE and 1.0 <= d["expected_J"] < 1.5
+    arg = identify_session(setup["session"], models=setup["model"], decision="argmax")
+    assert arg["class"] == TRUE and arg["decision"]["decision"] == "argmax"
+    with pytest.raises(UserError, match="decision"):
+        identify_session(setup["session"], models=setup["model"], decision="vote")
     json.dumps(ans)
 
 

@@ -39,6 +39,9 @@ def register(subparsers) -> None:
     p.add_argument("--att-classes", help="lateral: comma-separated attitude classes (default: every network)")
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="identification's fitted-model optimum mode (default never: the table path)")
+    p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
+                   help="identification's class decision (default: bayes where the bundle carries its cost matrix); the "
+                        "other decision is scored in the same run either way (table_*_class rows)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -65,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
-                    optimum=args.optimum)
+                    optimum=args.optimum, decision=args.decision)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

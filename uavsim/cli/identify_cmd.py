@@ -2,7 +2,7 @@
 
 The session needs an np-mrft (or mrft) run at the beta the network was trained
 for. The JSON (``--json``) is that of the session format: ``loop``, ``class``
-(the network's), ``params`` (the class's lags with K and tau fitted to the
+(of least expected J under the network's softmax: ``--decision``), ``params`` (the class's lags with K and tau fitted to the
 measured point), ``gains`` (kp, kd, derivative_filter_hz for the identified K)
 and ``gains_source``: ``table`` (the grid's robust PD of the class at the control
 rate over the identified K, the real-time answer) or ``optimum`` (the fitted
@@ -41,6 +41,9 @@ def register(subparsers) -> None:
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="also optimize the identified model's PD at the control rate (~10-20 ms) and answer it "
                         "when the model is off the grid (auto) or always (default never: the table's answer)")
+    p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
+                   help="class decision: least expected J over the network's cost matrix (bayes, default where the bundle "
+                        "carries it) or the most likely class (argmax)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -53,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from uavsim.ident.session import identify_session, write_model
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
-                           optimum=args.optimum)
+                           optimum=args.optimum, decision=args.decision)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)

@@ -13,6 +13,11 @@ all identification reads. ``meta.json`` carries, written at export time
   length, cycles, channels) and, for a lateral network, the attitude loop its
   sub-grid closes (the attitude class and the attitude table's PD).
 
+``weights.npz`` carries, beside the network, the class decision's cost matrix
+(``J``: the dataset's, rows class answered, columns true class) and the
+temperature of its belief (``uavsim.ident.select``); a folder exported before
+them decides by argmax only.
+
 So identification never reloads the package grids or tables, nor re-parses a
 recipe: a bundle identifies the same way wherever it is copied, and a grid
 rebuilt since cannot change its answers. A folder exported before the
@@ -28,6 +33,7 @@ with ``altitude/``, ``attitude/`` and ``lateral/aNN/``; the default root is
     b = load_bundle(resolve_model_dir("altitude", "training/runs"))
     b.family, b.n_classes, b.rate_hz, b.rule.beta
     b.column("table_robust_kp")                 # (n_classes,) unit-gain kp of the table's robust answers
+    b.cost, b.temperature                       # J (n_classes, n_classes) of the class decision or None; T
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.learning.bundle import BUNDLE_FORMAT
-from uavsim.learning.export import META_FILE, Predictor
+from uavsim.learning.export import META_FILE, WEIGHTS_FILE, Predictor
 from uavsim.tuning.rule import TuningRule
 
 __all__ = ["TABLE_COLUMNS", "PERIOD_RANGE", "ModelBundle", "load_bundle", "default_model_root", "resolve_model_dir",
@@ -85,6 +91,11 @@ class ModelBundle:
         Lateral: the attitude class of the sub-grid.
     predictor : Predictor
         The network (numpy).
+    cost : (n, n) float array or None
+        ``J`` of the class decision (rows class answered, columns true), from ``weights.npz``;
+        None for a folder exported before it.
+    temperature : float
+        Temperature of the decision's belief ``softmax(a / T)`` (``weights.npz``; 1 where absent).
     meta : dict
         ``meta.json`` as read.
     """
@@ -101,6 +112,8 @@ class ModelBundle:
     meta: dict[str, Any] = field(repr=False)
     attitude: dict[str, float] | None = None
     att_class: int | None = None
+    cost: np.ndarray | None = field(default=None, repr=False)
+    temperature: float = 1.0
 
     @property
     def family(self) -> str:
@@ -179,6 +192,24 @@ def _num(meta: dict, key: str, where: Path, default: float | None = None) -> flo
     return float(v)
 
 
+def _read_decision(d: Path, n: int) -> tuple[np.ndarray | None, float]:
+    """``J`` (n, n) and the temperature of ``weights.npz``: (None, 1) where the folder has none."""
+    path = d / WEIGHTS_FILE
+    if not path.is_file():
+        return None, 1.0
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            J = np.asarray(z["J"], dtype=np.float64) if "J" in z.files else None
+            T = float(z["temperature"]) if "temperature" in z.files else 1.0
+    except (OSError, ValueError, TypeError) as exc:
+        raise UserError(f"{path}: not a weights file ({exc})") from None
+    if J is not None and J.shape != (n, n):
+        raise UserError(f"{path}: cost matrix J of shape {J.shape}, the network has {n} classes")
+    if not (math.isfinite(T) and T > 0):
+        raise UserError(f"{path}: temperature {T} is not a positive number")
+    return J, T
+
+
 def _read_bundle(d: Path) -> ModelBundle:
     pred = Predictor(d)
     meta = pred.meta
@@ -218,8 +249,9 @@ def _read_bundle(d: Path) -> ModelBundle:
         if not isinstance(att, dict) or any(k not in att for k in _ATTITUDE_KEYS):
             raise UserError(f"{where}: a lateral bundle needs its attitude loop ({', '.join(_ATTITUDE_KEYS)})")
         att = {k: (int(v) if k == "att_class" else float(v)) for k, v in att.items() if v is not None}
+    cost, temperature = _read_decision(d, pred.n_classes)
     return ModelBundle(dir=d, loop=loop, rate_hz=_num(sec, "rate_hz", where), rule=r, input_length=L,
                        cycles=int(_num(pre, "cycles", where, 1)),
                        input_rate_hz=_num(pre, "input_rate_hz", where, 200.0), classes=classes, predictor=pred,
-                       meta=meta, attitude=att if loop == "lateral" else None,
+                       meta=meta, attitude=att if loop == "lateral" else None, cost=cost, temperature=temperature,
                        att_class=int(meta["att_class"]) if meta.get("att_class") is not None else None)

@@ -29,6 +29,10 @@ In the same run, on the same episodes (controls and alternatives):
 * ``rule_on_truth``: the grid's rule applied to the true process (its 10 Omega filter);
 * ``answer_x0.85``: the answer's ``kp`` and ``kd`` times 0.85 (a plain detuning,
   which a metric that cannot tell must not pass);
+* the class decisions (``uavsim.ident.select``), each scored like the answer (refusals
+  are failures): ``answer_bayes`` (least expected J under the network's softmax over
+  the bundle's cost matrix, at the bundle's temperature) and ``answer_argmax`` (the most likely class), both with the
+  answer's gain estimate; the one identification made equals ``answer``;
 * alternatives on the network's class: ``table_K_mrft`` (the gain estimated at the
   class's MRFT point, ``K = |G(jw)| / table_gain_at_omega``, instead of fitted at the
   measured frequency), ``table_optimum`` (the class's ISE optimum instead of the
@@ -62,6 +66,7 @@ from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.session import identify_cycle
+from uavsim.learning.decision import decide
 from uavsim.lumped.params import RANGES, LumpedParams
 
 __all__ = ["LEVELS", "DETUNE", "GOALS", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
@@ -93,6 +98,8 @@ class EvalSpec:
     chunk : episodes per MuJoCo batch (sorted by expected period)
     att_classes : lateral: the attitude classes (default: every one with a network)
     optimum : identification's ``optimum`` mode (``uavsim.ident.session``)
+    decision : identification's class decision (``uavsim.ident.select``; None: ``bayes`` where the
+        bundle carries its cost matrix)
     """
 
     loop: str = "altitude"
@@ -103,6 +110,7 @@ class EvalSpec:
     chunk: int = 60
     att_classes: tuple[int, ...] | None = None
     optimum: str = "never"
+    decision: str | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -229,7 +237,8 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
     return out
 
 
-def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str) -> dict[str, Any]:
+def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None
+                  ) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones)."""
     from uavsim.data.preprocess import features
 
@@ -237,13 +246,13 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     rate, h = recipe.episodes.rate_hz, recipe.test.h
     res = {"answers": [None] * n, "why": [None] * n, "response": np.full(n, complex("nan")),
            "response_period": np.full(n, np.nan), "ms": np.full(n, np.nan), "lead": np.full(n, np.nan),
-           "top": [None] * n}
+           "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan)}
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         try:
             t0 = time.perf_counter()
             f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, **kw)
-            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum)
+            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             res["why"][i] = str(exc)
@@ -252,10 +261,10 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
-        a = bundle.predictor.activations(f.x)[0].astype(np.float64)
-        top = np.argsort(-a)[:TOP_RECORDED]
-        p = np.exp(a[top] - a.max()) / np.exp(a - a.max()).sum()
-        res["top"][i] = [[int(c), float(q)] for c, q in zip(top, p, strict=True)]
+        res["act"][i] = bundle.predictor.activations(f.x)[0]
+        p = decide(res["act"][i], decision="argmax", temperature=bundle.temperature).p[0]
+        top = np.argsort(-p)[:TOP_RECORDED]
+        res["top"][i] = [[int(c), float(p[c])] for c in top]
         res["lead"][i] = phase_lead(f.response, f.response_period, bundle.rule.beta, bundle.input_rate_hz)
     return res
 
@@ -306,6 +315,15 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
         J["table_best_class" + name], J["table_nearest_class" + name] = nan(), nan()
         J["table_best_class" + name][meas] = Jall.min(axis=1)
         J["table_nearest_class" + name][meas] = Jall[np.arange(meas.size), near]
+        if not name:  # the class decisions on the identified episodes, with the answer's gain estimate
+            row = np.searchsorted(meas, gi)
+            if gi.size and not np.array_equal(meas[np.minimum(row, meas.size - 1)], gi):
+                raise RuntimeError("an identified episode without its measured cycle")
+            for dec in ("bayes", "argmax") if bundle.cost is not None else ("argmax",):
+                J["answer_" + dec] = np.full(n, _FAIL)
+                if gi.size:
+                    c_dec = decide(ids["act"][gi], bundle.cost, decision=dec, temperature=bundle.temperature).cls
+                    J["answer_" + dec][gi] = Jall[row, c_dec]
     # alternatives on the identified episodes: the network's class with other gain choices
     for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum", "optimum_when_off_grid"):
         J[k] = nan()
@@ -340,7 +358,7 @@ def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, late
     for gname, sel in groups:
         rows = {}
         for name, j in J.items():
-            answered_only = name not in ("answer", f"answer_x{DETUNE:g}")
+            answered_only = not name.startswith("answer")
             jj = j[sel]
             if answered_only:  # controls: over the episodes they could be computed on
                 rows[name] = summarize(jj[~np.isnan(jj)])
@@ -380,7 +398,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params)
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        ids = _identify_all(b, sim, r, spec.optimum)
+        ids = _identify_all(b, sim, r, spec.optimum, spec.decision)
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,
@@ -445,6 +463,7 @@ def _episodes(per: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          "response_period": float(p["response_period"][i]), "network_top": p["top"][i],
                          "refused": p["why"][i], "class": None if a is None else a["class"],
                          "K_hat": None if a is None else a["table"]["K_hat"],
+                         "decision": None if a is None else a["decision"],
                          "J": {k: None if a is None and k.startswith("answer") else _json_j(v[i])
                                for k, v in p["J"].items()}})
     return rows

@@ -4,7 +4,9 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
 
 1. the last steady cycle, exactly as the training sets were built, checked
    (``uavsim.ident.cycle.extract_cycle``);
-2. the class: the network's (``uavsim.ident.select.choose_class``);
+2. the class: the answer of least expected J under the network's softmax, over the
+   bundle's cost matrix (``uavsim.ident.select.decide_class``; ``decision="argmax"``: the most likely
+   class, also what a bundle exported without the matrix answers);
 3. the gains: the table's robust PD of the class over the estimated gain
    ``K_hat`` (``uavsim.ident.gains``), the real-time answer. With ``optimum``
    the fitted model's own optimum at the control rate is computed too (~10-20 ms,
@@ -39,7 +41,7 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.select import choose_class
+from uavsim.ident.select import decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -55,14 +57,8 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
     return {k: float(np.asarray(g[k]).ravel()[0]) for k in keys}
 
 
-def _softmax(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
-    p = np.exp(a - a.max())
-    return p / p.sum()
-
-
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
-                   attitude: dict[str, float] | None = None) -> dict[str, Any]:
+                   attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -77,19 +73,24 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Lateral only: the flight's attitude loop when known better than the bundle's
         (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
         fitted model and its optimum, not the table's answer.
+    decision : ``"bayes"``, ``"argmax"`` or None
+        The class decision (``uavsim.ident.select``); None: ``bayes`` where the bundle carries
+        its cost matrix, else ``argmax``.
 
     Returns
     -------
     dict: ``loop``, ``class``, ``params`` (the fitted model), ``gains`` (kp, kd,
     derivative_filter_hz), ``gains_source`` (``table`` or ``optimum``), ``table`` (class,
     ``K_hat``, rate), ``gains_table``, ``gains_optimum`` (when computed, with ``latency_ms`` and
-    ``ise``), ``gains_measured_point``, ``off_grid``, ``class_params``, ``softmax_top``,
-    ``oscillation`` and ``response``.
+    ``ise``), ``gains_measured_point``, ``off_grid``, ``class_params``, ``decision`` (``decision``,
+    ``expected_J`` of the class answered, ``class_argmax``, ``softmax`` of the class answered),
+    ``softmax_top``, ``oscillation`` and ``response``.
     """
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     act = bundle.predictor.activations(f.x)
-    c = int(choose_class(act)[0])
+    dec = decide_class(bundle, act, decision=decision)
+    c = int(dec.cls[0])
     model = fitted_model(bundle, [c], np.array([f.response]), np.array([f.response_period]), attitude=attitude)
     K_hat = model["K"]
     if not (np.isfinite(K_hat[0]) and K_hat[0] > 0):
@@ -125,7 +126,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), rule=bundle.rule,
                               rate_hz=bundle.input_rate_hz)
     ans["gains_measured_point"] = _floats(gm)
-    ans["softmax_top"] = float(_softmax(act[0])[c])
+    ans["decision"] = {"decision": dec.decision, "expected_J": None if np.isnan(dec.expected_J[0]) else
+                       float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c])}
+    ans["softmax_top"] = float(dec.p[0, c])
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
                           "stop": f.stop}
     ans["response"] = {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
@@ -135,19 +138,19 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
                     beta: float | None = None, optimum: str = "never",
-                    attitude: dict[str, float] | None = None) -> dict[str, Any]:
+                    attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
     ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's).
     """
     f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
-    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude)
+    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision)
 
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
-                     optimum: str = "never") -> dict[str, Any]:
+                     optimum: str = "never", decision: str | None = None) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -164,7 +167,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         over (what identification of its roll or pitch session gave); picks ``lateral/aNN``.
     attitude : dict or None
         Lateral only: the flight's attitude loop when known (``identify_cycle``).
-    optimum : str
+    optimum, decision : str
         ``identify_cycle``'s.
 
     Returns
@@ -198,7 +201,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
     ans = identify_arrays(r.data.y, r.data.u, rate_hz=s.control_rate_hz, h=float(r.spec.h),
                           bias=float(r.spec.bias or 0.0), bundle=b, beta=r.spec.beta, optimum=optimum,
-                          attitude=attitude)
+                          attitude=attitude, decision=decision)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
     ans["model_dir"] = str(d)
