@@ -75,3 +75,22 @@ def test_temperature_recovered_from_labels_drawn_from_the_belief():
     J, act = _toy()
     assert decide(act, J, temperature=0.01).cls.tolist() == [0]  # sure of class 0: (0.4 / 0.55)^100
     assert decide(act, J, decision="argmax", temperature=5.0).cls.tolist() == [0]
+
+
+@pytest.mark.parametrize("p_runner_up_true,expected", [(0.4, "bayes"), (0.0, "argmax")])
+def test_trainer_takes_bayes_unless_argmax_is_better_on_validation(p_runner_up_true, expected):
+    """The toy belief on every input; the truth is class 1 (where class 0 is unstable) on a fraction of them.
+    When it is, Bayes (class 2) costs less; when the network is always right, argmax does."""
+    torch = pytest.importorskip("torch")
+    from uavsim.learning.train import TrainData, _val_metrics
+
+    J, a = _toy()
+    n_in = 50
+    y = np.zeros(n_in, np.int64)
+    y[: int(round(p_runner_up_true * n_in))] = 1
+    act = np.repeat(a[None, :], n_in, axis=0)
+    data = TrainData(X=act.astype(np.float32), labels=y, J=J, attrs={}, classes={})
+    m = _val_metrics(torch.nn.Identity(), torch.from_numpy(data.X), np.arange(n_in), data, torch.device("cpu"),
+                     temperature=1.0)
+    assert m["decision"] == expected and m["mean_J"] == min(m["mean_J_bayes"], m["mean_J_argmax"])
+    assert m["mean_J_bayes"] == pytest.approx(np.mean(np.clip(J[2, y], *COST_CLIP)))

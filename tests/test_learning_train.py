@@ -77,10 +77,11 @@ def test_train_export_and_predictor(tmp_path):
     # the metrics are of identification's decision (least expected J over the set's J at the temperature
     # fitted on the validation set), argmax beside them
     b = load_bundle(out)
-    assert b.temperature == pytest.approx(rep["val"]["temperature"])
+    assert b.temperature == pytest.approx(rep["val"]["temperature"]) and b.decision == rep["val"]["decision"]
     pred_b = decide(act, ds.J, temperature=b.temperature).cls
-    assert class_metrics(pred_b, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1"])
+    assert class_metrics(pred_b, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1_bayes"])
     assert class_metrics(cls, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1_argmax"])
+    assert rep["test"]["top1"] == rep["test"][f"top1_{b.decision}"]
     # the best epoch is the one of least mean J of that decision, and the bundle carries its J
     best = [h for h in rep["history"] if h["epoch"] == rep["best_epoch"]][0]
     assert best["val_mean_J"] == pytest.approx(rep["val"]["mean_J"]) and "val_mean_J_argmax" in best

@@ -15,8 +15,9 @@ all identification reads. ``meta.json`` carries, written at export time
 
 ``weights.npz`` carries, beside the network, the class decision's cost matrix
 (``J``: the dataset's, rows class answered, columns true class) and the
-temperature of its belief (``uavsim.ident.select``); a folder exported before
-them decides by argmax only.
+temperature of its belief, and ``meta.json``'s ``identification`` section the
+decision the trainer chose (``class_decision``: ``uavsim.ident.select``); a
+folder exported before them decides by argmax only.
 
 So identification never reloads the package grids or tables, nor re-parses a
 recipe: a bundle identifies the same way wherever it is copied, and a grid
@@ -96,6 +97,9 @@ class ModelBundle:
         None for a folder exported before it.
     temperature : float
         Temperature of the decision's belief ``softmax(a / T)`` (``weights.npz``; 1 where absent).
+    decision : str
+        The class decision identification makes by default: the trainer's choice, ``bayes``
+        where the bundle carries ``J`` and names none, ``argmax`` without ``J``.
     meta : dict
         ``meta.json`` as read.
     """
@@ -114,6 +118,7 @@ class ModelBundle:
     att_class: int | None = None
     cost: np.ndarray | None = field(default=None, repr=False)
     temperature: float = 1.0
+    decision: str = "argmax"
 
     @property
     def family(self) -> str:
@@ -250,8 +255,11 @@ def _read_bundle(d: Path) -> ModelBundle:
             raise UserError(f"{where}: a lateral bundle needs its attitude loop ({', '.join(_ATTITUDE_KEYS)})")
         att = {k: (int(v) if k == "att_class" else float(v)) for k, v in att.items() if v is not None}
     cost, temperature = _read_decision(d, pred.n_classes)
+    decision = ((sec.get("class_decision") or {}).get("decision") or "bayes") if cost is not None else "argmax"
+    if decision not in ("bayes", "argmax"):
+        raise UserError(f"{where}: class decision {decision!r} is not bayes or argmax")
     return ModelBundle(dir=d, loop=loop, rate_hz=_num(sec, "rate_hz", where), rule=r, input_length=L,
                        cycles=int(_num(pre, "cycles", where, 1)),
                        input_rate_hz=_num(pre, "input_rate_hz", where, 200.0), classes=classes, predictor=pred,
-                       meta=meta, attitude=att if loop == "lateral" else None, cost=cost, temperature=temperature,
+                       meta=meta, attitude=att if loop == "lateral" else None, cost=cost, temperature=temperature, decision=decision,
                        att_class=int(meta["att_class"]) if meta.get("att_class") is not None else None)

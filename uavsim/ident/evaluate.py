@@ -98,8 +98,7 @@ class EvalSpec:
     chunk : episodes per MuJoCo batch (sorted by expected period)
     att_classes : lateral: the attitude classes (default: every one with a network)
     optimum : identification's ``optimum`` mode (``uavsim.ident.session``)
-    decision : identification's class decision (``uavsim.ident.select``; None: ``bayes`` where the
-        bundle carries its cost matrix)
+    decision : identification's class decision (``uavsim.ident.select``; None: the bundle's)
     """
 
     loop: str = "altitude"

@@ -9,7 +9,9 @@ answered, columns true class) with the network's softmax at the bundle's
 temperature as the belief
 (``uavsim.learning.decision``: the same decision the trainer picks its best
 epoch on). ``decision="argmax"`` (the most likely class) is kept for comparison;
-it is also what a bundle exported without ``J`` answers.
+it is also what a bundle exported without ``J`` answers, and what the trainer
+exports as the decision where it had the lower mean J on the validation set
+(``ModelBundle.decision``).
 
     from uavsim.ident.select import choose_class, decide_class
     d = decide_class(bundle, bundle.predictor.activations(x))       # Decision: cls, expected_J, p, decision
@@ -30,17 +32,15 @@ __all__ = ["DECISIONS", "Decision", "decide_class", "choose_class"]
 def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None) -> Decision:
     """The class decision for the network's activations (m, n) or (n,).
 
-    ``decision``: ``"bayes"``, ``"argmax"``, or None for ``bayes`` where the bundle carries its
-    cost matrix and ``argmax`` where it does not. ``expected_J`` is that of the class answered
-    (nan without a cost matrix).
+    ``decision``: ``"bayes"``, ``"argmax"``, or None for the bundle's (``ModelBundle.decision``).
+    ``expected_J`` is that of the class answered (nan without a cost matrix).
     """
     if decision is not None and decision not in DECISIONS:
         raise UserError(f"decision must be one of {', '.join(DECISIONS)}, got {decision!r}")
     if decision == "bayes" and bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the Bayes decision "
                         "needs: retrain, or decide by argmax")
-    return decide(activations, bundle.cost, decision=decision or ("bayes" if bundle.cost is not None else "argmax"),
-                  temperature=bundle.temperature)
+    return decide(activations, bundle.cost, decision=decision or bundle.decision, temperature=bundle.temperature)
 
 
 def choose_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None) -> np.ndarray:

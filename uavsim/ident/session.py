@@ -74,8 +74,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
         fitted model and its optimum, not the table's answer.
     decision : ``"bayes"``, ``"argmax"`` or None
-        The class decision (``uavsim.ident.select``); None: ``bayes`` where the bundle carries
-        its cost matrix, else ``argmax``.
+        The class decision (``uavsim.ident.select``); None: the bundle's (``ModelBundle.decision``).
 
     Returns
     -------

@@ -8,10 +8,12 @@ multiplied by ``lr_decay`` every ``lr_step_epochs``, the J-weighted softmax loss
 early stopping on the validation **mean J** (the closed-loop cost of the
 answered class for the true one), not on accuracy: two wrong classes are not
 equally wrong. The answered class is the one identification answers: least
-expected J under the network's softmax (``uavsim.learning.decision``, Bayes); the
-metrics of the most likely class (argmax) are reported beside it (``*_argmax``).
-The belief's temperature is fitted to the validation set each epoch; the
-exported ``weights.npz`` carries the set's ``J`` and the best epoch's temperature.
+expected J under the network's softmax (``uavsim.learning.decision``, Bayes),
+unless the most likely class (argmax) has the lower mean J on the validation set
+(a belief too poor to weigh costs with); both are reported (``*_bayes``,
+``*_argmax``). The belief's temperature is fitted to the validation set each
+epoch; the exported ``weights.npz`` carries the set's ``J`` and the best epoch's
+temperature, ``meta.json`` its decision.
 
 Every epoch writes ``OUT/checkpoint.pt`` (model, optimizer, schedule, RNG
 states, history; atomically), so ``--resume`` continues exactly where an
@@ -447,21 +449,26 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
     }
 
 
-def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData,
-                 device: torch.device, temperature: float | None = None) -> dict[str, float]:
-    """Metrics of identification's decision (Bayes over ``J``), and of argmax beside them.
+def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData, device: torch.device, *,
+                 temperature: float | None = None, decision: str | None = None) -> dict[str, Any]:
+    """Metrics of identification's class decision, and of both decisions beside them (``*_bayes``, ``*_argmax``).
 
-    ``temperature``: the belief's (``uavsim.learning.decision``); None fits it to this set
-    (validation: the one exported with the best epoch).
+    ``temperature``: the belief's (``uavsim.learning.decision``); None fits it to this set.
+    ``decision``: ``bayes`` or ``argmax``; None takes Bayes unless argmax has the lower mean J
+    on this set (validation: what the best epoch exports; the test set gets the exported ones).
     """
+    true = data.labels[idx]
     if X.shape[0] == 0:
-        return class_metrics(np.zeros(0, np.int64), data.labels[idx], data.J)
+        return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
-    T = fit_temperature(act, data.labels[idx]) if temperature is None else float(temperature)
-    pred = decide(act, data.J, decision="bayes", temperature=T).cls
-    arg = class_metrics(act.argmax(axis=1), data.labels[idx], data.J)
-    return {**class_metrics(pred, data.labels[idx], data.J), **gain_metrics(pred, data, idx),
-            **{f"{k}_argmax": arg[k] for k in ("top1", "mean_J", "p95_J")}, "temperature": T}
+    T = fit_temperature(act, true) if temperature is None else float(temperature)
+    pred = {d: decide(act, data.J, decision=d, temperature=T).cls for d in ("bayes", "argmax")}
+    m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
+    if decision is None:
+        decision = "bayes" if m["bayes"]["mean_J"] <= m["argmax"]["mean_J"] else "argmax"
+    return {**m[decision], **gain_metrics(pred[decision], data, idx),
+            **{f"{k}_{d}": m[d][k] for d in pred for k in ("top1", "mean_J", "p95_J")},
+            "temperature": T, "decision": decision}
 
 
 def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dict[str, Any]:
@@ -574,9 +581,10 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     net.cpu()
     meta = _class_meta(data, recipe, cfg)
     meta.update({"best_epoch": best["epoch"], "val": {k[4:]: v for k, v in best.items() if k.startswith("val_")}})
-    if "temperature" not in meta["val"]:  # a best epoch from a checkpoint written before the decision existed
+    if "decision" not in meta["val"]:  # a best epoch from a checkpoint written before the decision existed
         meta["val"] = _val_metrics(net, Xva, va_idx, data, torch.device("cpu"))
-    T_best = float(meta["val"]["temperature"])
+    T_best, decision = float(meta["val"]["temperature"]), str(meta["val"]["decision"])
+    meta["identification"]["class_decision"]["decision"] = decision
     export_model(net, meta, out, arrays={"J": data.J, "temperature": np.float64(T_best)})
     from uavsim.learning.figures import training_curves_png
 
@@ -589,7 +597,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         "best_epoch": best["epoch"], "train_time_s": train_s, "device": device.type,
         "threads": torch.get_num_threads(), "seed": seed, "val": meta["val"], "out": str(out),
         "dataset": recipe.dataset, "curves": str(out / CURVES),
-        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1", "val_mean_J_argmax") if k in h}
+        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1", "val_decision", "val_mean_J_bayes",
+                                             "val_mean_J_argmax") if k in h}
                     for h in history],
     }
     if recipe.test_dataset and not Path(recipe.test_dataset).is_file():
@@ -603,7 +612,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         if gi is not None and gt is not None and not np.array_equal(gi, gt):
             raise UserError(f"{recipe.test_dataset}: class subset differs from the training set's")
         report["test"] = _val_metrics(net, torch.from_numpy(test.X), np.arange(len(test.labels)), test,
-                                      torch.device("cpu"), temperature=T_best)
+                                      torch.device("cpu"), temperature=T_best, decision=decision)
         report["test_dataset"] = recipe.test_dataset
     Path(out / REPORT).write_text(json.dumps(report, indent=1))
     return report
