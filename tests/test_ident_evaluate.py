@@ -25,6 +25,14 @@ def test_summary_counts_refusals_and_instability_as_failures():
     assert s["p95"] == pytest.approx(1.285) and s["refused"] == 0 and s["max"] == pytest.approx(1.3)
     # half refused: the median is a failure too
     assert summarize(np.ones(4), np.array([True, True, True, False]))["median"] == float("inf")
+    # the rows keep an unstable answer unstable (not the largest float) and a refused one refused
+    from uavsim.ident.evaluate import _rows
+
+    J = {"answer": np.array([1.0, np.inf, np.nan, 1.1]), "rule_on_truth": np.array([1.0, np.inf, 1.2, np.nan])}
+    rows = _rows(J, np.array([False, False, True, False]), np.zeros(4), lateral=False)["all"]
+    assert rows["answer"]["unstable"] == 1 and rows["answer"]["refused"] == 1 and rows["answer"]["max"] == 1.1
+    assert rows["rule_on_truth"] == {"n": 3, "refused": 0, "unstable": 1, "median": 1.2, "p95": float("inf"),
+                                     "max": 1.2}
 
 
 def test_noise_plan_and_processes_are_seeded_and_balanced():

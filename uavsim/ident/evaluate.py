@@ -350,6 +350,11 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
     return J
 
 
+def _failed_if_nan(j: np.ndarray) -> np.ndarray:
+    """Not computed (nan) as a failure (inf); an unstable answer stays inf (``np.nan_to_num`` would make it finite)."""
+    return np.where(np.isnan(j), _FAIL, j)
+
+
 def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, lateral: bool) -> dict[str, Any]:
     """Summaries per noise level and over all: answer rows count refusals as failures."""
     out: dict[str, Any] = {}
@@ -362,7 +367,7 @@ def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, late
             if answered_only:  # controls: over the episodes they could be computed on
                 rows[name] = summarize(jj[~np.isnan(jj)])
             else:
-                rows[name] = summarize(np.nan_to_num(jj, nan=_FAIL), refused[sel])
+                rows[name] = summarize(_failed_if_nan(jj), refused[sel])
         out[gname] = rows
     out["goal"] = _goal_check(out["all"]["answer"], lateral)
     return out
@@ -421,7 +426,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         "wall_s": time.perf_counter() - t0,
     }
     if lateral:
-        out["per_attitude_class"] = {str(p["att_class"]): summarize(np.nan_to_num(p["J"]["answer"], nan=_FAIL),
+        out["per_attitude_class"] = {str(p["att_class"]): summarize(_failed_if_nan(p["J"]["answer"]),
                                                                    p["refused"]) for p in per}
     return out
 
