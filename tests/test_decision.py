@@ -51,6 +51,13 @@ def test_bayes_equals_argmax_where_classes_are_far_apart():
     assert np.allclose(expected_cost(p, J), np.stack([np.clip(J, *COST_CLIP) @ q for q in p]))
 
 
+def test_the_decision_clips_as_the_loss_does():
+    pytest.importorskip("torch")
+    from uavsim.learning.loss import J_CLIP
+
+    assert COST_CLIP == J_CLIP
+
+
 def test_decision_errors():
     J, a = _toy()
     with pytest.raises(UserError, match="decision"):

@@ -101,6 +101,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     from uavsim.ident.bundle import load_bundle
     from uavsim.ident.cycle import extract_cycle
     from uavsim.ident.gains import fitted_model, model_optimum, table_gains
+    from uavsim.ident.select import choose_class
     from uavsim.ident.session import identify_arrays
     from uavsim.tuning.grid import load_grid
 
@@ -121,7 +122,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             identify_arrays(y, u, beta=g.beta, **kw)
         t_pre, t_net, t_all, t_base, t_opt = (np.empty(reps) for _ in range(5))
         f = extract_cycle(y, u, **kw)
-        c = [int(pred.predict(f.x)[0][0])]
+        c = choose_class(b, pred.activations(f.x))
         model = fitted_model(b, c, np.array([f.response]), np.array([f.response_period]))
         start = table_gains(b, c, model["K"])
         xb = x0.reshape(1, -1).astype(np.float32)

@@ -566,7 +566,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             stale += 1
         if not quiet:
             print(f"{recipe.name} epoch {epoch + 1}: loss {rec['loss']:.4f}  val top1 {vm['top1']:.3f}  "
-                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  kp err median {vm.get('kp_err_median', math.nan):.3f}  "
+                  f"mean J {vm['mean_J']:.4f} ({vm.get('decision', '-')}; argmax {vm.get('mean_J_argmax', math.nan):.4f})  p95 J {vm['p95_J']:.3f}  kp err median {vm.get('kp_err_median', math.nan):.3f}  "
                   f"({rec['elapsed_s']:.0f} s)", file=sys.stderr)
         _atomic_save({
             "fingerprint": recipe.fingerprint(), "epoch": epoch, "model": net.state_dict(), "optim": opt.state_dict(),
