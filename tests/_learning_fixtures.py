@@ -35,7 +35,7 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
                        loop: str = "altitude", response: bool = True) -> Path:
     """Synthetic cycles of ``n_classes`` unit-gain altitude-like classes; with ``response``, each episode's
     fundamental response is its class's ``K G(j w)`` (as sampled at 200 Hz) times 1% noise."""
-    from uavsim.learning.identify import held_response
+    from uavsim.data.preprocess import held_response
     from uavsim.lumped.frequency import freq_response_batch
 
     X, y = synthetic_cycles(n_classes, per_class, L, seed)
@@ -52,7 +52,8 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
         g = load_grid("altitude")
         rule = TuningRule(g.beta, g.pm_deg).gains_batch("altitude", K=1.0, T_prop=classes["T_prop"],
                                                         T1=classes["T1"], tau=classes["tau"])
-        classes.update(kp=rule["kp"], kd=rule["kd"], omega=rule["omega"])
+        classes.update(kp=rule["kp"], kd=rule["kd"], omega=rule["omega"], table_robust_kp=rule["kp"],
+                       table_robust_kd=rule["kd"])
     eps = {"inputs": X, "labels": y, "K": K, "bias": np.zeros(N), "noise_kind": np.zeros(N),
            "noise_level": np.zeros(N), "period": np.ones(N), "amplitude": K * classes["amplitude"][y],
            "y0": np.zeros(N), "tau_obs": np.zeros(N), "a_n": np.zeros(N), "episode": np.arange(N),
@@ -125,6 +126,10 @@ def three_class_set(path: Path, grid, L: int) -> None:
     classes.update({k: np.asarray(getattr(grid, k))[ci] for k in
                     ("kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")})
     classes["grid_index"] = ci.astype(float)
+    # the grid's table at 200 Hz, as generation writes it (identification answers from it)
+    from uavsim.data.generate import class_table_gains
+
+    classes.update({k: v[ci] for k, v in class_table_gains("altitude", 200.0, None).items() if k != "J"})
     attrs = {"loop": "altitude", "grid_hash": grid.hash, "grid_version": grid.version, "beta": grid.beta, "h": 1.0,
              "tau_obs": 0.0, "a_n": 0.0, "rate_hz": 200.0, "input_length": L, "channels": ["y", "u"],
              "cycles_per_input": 1, "recipe": "seed = 0\n", "seed": 0, "versions": "{}", "git_commit": "test",

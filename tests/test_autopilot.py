@@ -15,7 +15,7 @@ from uavsim.errors import UserError
 
 ANS = {"loop": "roll", "class": 17, "params": {"K": 40.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.01},
        "gains": {"kp": 0.12, "kd": 0.018, "derivative_filter_hz": 25.0},
-       "gains_best_fit": {"kp": 0.1, "kd": 0.02, "derivative_filter_hz": 20.0}}
+       "gains_table": {"kp": 0.1, "kd": 0.02, "derivative_filter_hz": 20.0}}
 
 # the documented mapping, written out independently of MAPPING: outer P, rate P, the rest fixed
 EXPECTED = {
@@ -98,7 +98,7 @@ def test_cli_from_identify_json(tmp_path, capsys):
     src.write_text(json.dumps(ANS))
     out = tmp_path / "roll.parm"
     assert cli_main.main(["export-gains", str(src), "--autopilot", "ardupilot", "--cmd-scale", "1",
-                          "--gains", "gains_best_fit", "--out", str(out), "--json"]) == 0
+                          "--gains", "gains_table", "--out", str(out), "--json"]) == 0
     ans = json.loads(capsys.readouterr().out)
     assert ans["params"] == read_params(out)
     assert ans["params"]["ATC_ANG_RLL_P"] == pytest.approx(0.1 / 0.02)

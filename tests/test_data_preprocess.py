@@ -5,11 +5,11 @@ import pytest
 
 from uavsim.data.preprocess import (
     INPUT_RATE_HZ,
-    NoOscillation,
     features,
     features_batch,
     input_length,
 )
+from uavsim.errors import NoOscillation
 
 
 def relay_trace(period_s: float, rate_hz: float, duration_s: float, h: float = 1.0, bias: float = 0.0,

@@ -11,6 +11,8 @@ import torch
 from _learning_fixtures import tiny_J, write_tiny_dataset
 
 from uavsim.errors import UserError
+from uavsim.ident.bundle import load_bundle
+from uavsim.learning.decision import decide
 from uavsim.learning.export import Predictor
 from uavsim.learning.train import class_metrics, load_train_recipe, train, train_from_recipe
 
@@ -72,7 +74,18 @@ def test_train_export_and_predictor(tmp_path):
     ds = open_dataset(tmp_path / "b.h5")
     cls, act = pred.predict(ds.inputs)
     assert act.shape == (ds.n, 6)
-    assert class_metrics(cls, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1"])
+    # the metrics are of identification's decision (least expected J over the set's J at the temperature
+    # fitted on the validation set), argmax beside them
+    b = load_bundle(out)
+    assert b.temperature == pytest.approx(rep["val"]["temperature"]) and b.decision == rep["val"]["decision"]
+    pred_b = decide(act, ds.J, temperature=b.temperature).cls
+    assert class_metrics(pred_b, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1_bayes"])
+    assert class_metrics(cls, ds.labels, ds.J)["top1"] == pytest.approx(rep["test"]["top1_argmax"])
+    assert rep["test"]["top1"] == rep["test"][f"top1_{b.decision}"]
+    # the best epoch is the one of least mean J of that decision, and the bundle carries its J
+    best = [h for h in rep["history"] if h["epoch"] == rep["best_epoch"]][0]
+    assert best["val_mean_J"] == pytest.approx(rep["val"]["mean_J"]) and "val_mean_J_argmax" in best
+    assert np.array_equal(b.cost, ds.J)
 
 
 def test_gain_error_from_the_response(tmp_path):

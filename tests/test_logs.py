@@ -14,7 +14,7 @@ from _log_writers import write_dataflash, write_ulog
 import uavsim.cli.main as cli_main
 from uavsim.errors import UserError
 from uavsim.formats.session import read_session, write_session
-from uavsim.learning.identify import identify_session
+from uavsim.ident.session import identify_session
 from uavsim.logs import detect_relay, import_log
 
 HOVER = 0.45  # the thrust the relay is added to (normalized)
@@ -32,7 +32,7 @@ def flight(three_model, tmp_path_factory):  # noqa: F811
     s = _mujoco_session(grid, CLASSES[1])
     src = write_session(s, folder / "source")
     return {"session": read_session(src), "path": src, "model": model,
-            "answer": identify_session(src, model_dir=model)}
+            "answer": identify_session(src, models=model)}
 
 
 def _ticks(run, rate):
@@ -103,7 +103,7 @@ def test_ulog_round_trip_identifies_as_the_flight(flight, tmp_path):
     # the controller's samples come back exactly (as float32, the log's type), on the controller's ticks
     np.testing.assert_array_equal(run.data.y, src.data.y[:n].astype(np.float32).astype(np.float64))
     np.testing.assert_allclose(run.data.u - ans["run"]["bias"], src.data.u[:n] - src.spec.bias, atol=1e-6)
-    _same_identification(identify_session(tmp_path / "s", model_dir=flight["model"]), flight["answer"])
+    _same_identification(identify_session(tmp_path / "s", models=flight["model"]), flight["answer"])
 
 
 def test_dataflash_round_trip_identifies_as_the_flight(flight, tmp_path, capsys):
@@ -234,7 +234,7 @@ def test_ros2_bag_round_trip(flight, tmp_path):
     assert ans["format"] == "rosbag"
     run = read_session(tmp_path / "s").runs[0]
     np.testing.assert_array_equal(run.data.y, s.runs[0].data.y[: run.data.t.size])  # float64 all the way
-    _same_identification(identify_session(tmp_path / "s", model_dir=flight["model"]), flight["answer"])
+    _same_identification(identify_session(tmp_path / "s", models=flight["model"]), flight["answer"])
     with pytest.raises(UserError, match="no number at 'pose.position.w'"):
         import_log(bag, tmp_path / "s2", loop="altitude", r="/relay/r.data", y="/mavros/local_position/pose.pose"
                    ".position.w", u="/relay/u.data", **_spec(flight))

@@ -39,13 +39,13 @@ def test_mrft_df_needs_a_cycle():
 
 
 def test_identify_calls_identify_session(monkeypatch, tmp_path):
-    """The DNN path is one call to uavsim.learning.identify.identify_session."""
-    import uavsim.learning.identify as li
+    """The DNN path is one call to uavsim.ident.session.identify_session."""
+    import uavsim.ident.session as li
 
     seen = {}
 
-    def fake_identify_session(path, model_dir=None):  # TEST double, tests only
-        seen["path"], seen["model_dir"] = path, model_dir
+    def fake_identify_session(path, models=None):  # TEST double, tests only
+        seen["path"], seen["model_dir"] = path, models
         return {"loop": "altitude", "class": 3, "params": {"K": 1.0, "T_prop": 0.1, "T1": 0.5, "tau": 0.02},
                 "gains": {"kp": 1.0, "kd": 0.3}}
 
@@ -57,9 +57,9 @@ def test_identify_calls_identify_session(monkeypatch, tmp_path):
 
 
 def test_identify_auto_falls_back_and_says_why(monkeypatch, tmp_path):
-    import uavsim.learning.identify as li
+    import uavsim.ident.session as li
 
-    def failing(path, model_dir=None):  # TEST double, tests only
+    def failing(path, models=None):  # TEST double, tests only
         raise UserError("no trained altitude network")
 
     monkeypatch.setattr(li, "identify_session", failing)
@@ -170,9 +170,19 @@ def test_lateral_uses_the_roll_class_network_or_says_why(tmp_path):
     scn = load_scenario(SCEN / "wind-5ms.toml")
     roll = {"class": 4, "params": {"K": 20.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.01},
             "gains": {"kp": 0.9, "kd": 0.1, "derivative_filter_hz": 12.0}}
-    model = tmp_path / "lateral" / "a04"
-    model.mkdir(parents=True)
-    (model / "meta.json").write_text("{}")
+    from _learning_fixtures import trained_like_net
+
+    from uavsim.learning.bundle import bundle_section
+    from uavsim.learning.export import export_model
+
+    g = load_grid("lateral")
+    sub = g.lateral(4)
+    ident = bundle_section(loop="lateral", grid_hash=g.hash, rate_hz=200.0, beta=None, input_length=40, cycles=1,
+                           att_class=4)
+    classes = {k: np.asarray(sub.params[k])[:5].tolist() for k in ("T2", "tau")}
+    export_model(trained_like_net(), {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "lateral",
+                                      "att_class": 4, "classes": classes, "identification": ident},
+                 tmp_path / "lateral" / "a04")
     scn.identification = replace(scn.identification, method="auto", model_dir=str(tmp_path))
     beta, ctx = _lateral_networks(scn, roll)
     assert beta == load_grid("lateral").lateral(4).beta

@@ -125,6 +125,34 @@ def test_identify_without_torch_answers_the_same_json(three_model, tmp_path):  #
     assert no_torch["class"] == 1
 
 
+def test_identify_reads_nothing_but_the_bundle(three_model, tmp_path):  # noqa: F811
+    """A model folder copied away identifies in a process where the package grids, tables and recipes
+    cannot even be imported (nor torch), the optimum of the fitted model included: the bundle carries
+    everything identification needs."""
+    import shutil
+
+    from _learning_fixtures import CLASSES
+    from test_identify import _mujoco_session
+
+    from uavsim.formats.session import write_session
+
+    tmp, model, grid = three_model
+    sess = write_session(_mujoco_session(grid, CLASSES[1]), tmp_path / "session")
+    copy = shutil.copytree(model, tmp_path / "elsewhere" / "model")
+    block = ("class _NoGrids:\n"
+             "    def find_spec(self, name, path=None, target=None):\n"
+             "        if name in ('uavsim.tuning.grid', 'uavsim.tuning.table', 'uavsim.data.recipe'):\n"
+             "            raise ModuleNotFoundError(f'No module named {name!r}', name=name)\n"
+             "sys.meta_path.insert(0, _NoGrids())\n")
+    code = block + ("from uavsim.ident.session import identify_session\n"
+                    "import json\n"
+                    "print(json.dumps(identify_session(sys.argv[1], models=sys.argv[2], optimum='always')))\n")
+    res = _run_without_torch(code, str(sess), str(copy))
+    assert res.returncode == 0, res.stderr
+    ans = json.loads(res.stdout)
+    assert ans["class"] == 1 and ans["gains_source"] == "optimum" and ans["gains_table"]["kp"] > 0
+
+
 def _assert_same_json(a, b, path="$"):
     """Equal structure and strings; numbers equal within float32 rounding of the network's outputs."""
     assert type(a) is type(b) or {type(a), type(b)} <= {int, float}, path

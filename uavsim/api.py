@@ -28,7 +28,7 @@ PathLike = str | os.PathLike
 
 
 def identify_session(session: PathLike, models: PathLike | None = None, *, run: str | None = None,
-                     attitude_class: int | None = None) -> dict[str, Any]:
+                     attitude_class: int | None = None, optimum: str = "never") -> dict[str, Any]:
     """Identify a loop from a session's relay run (DNN-NP-MRFT), without torch.
 
     Parameters
@@ -37,21 +37,25 @@ def identify_session(session: PathLike, models: PathLike | None = None, *, run: 
         Session folder (or its ``session.toml``) with an ``np-mrft`` or ``mrft`` run.
     models : path-like, optional
         Exported network folder, or a root with ``altitude/``, ``attitude/`` (default
-        ``$UAVSIM_MODELS`` or ``training/runs``).
+        ``$UAVSIM_MODELS`` or ``training/runs`` under the current directory).
     run : str, optional
         CSV file name of the run to use (default: the first np-mrft run).
     attitude_class : int, optional
         Lateral sessions: the attitude class of the roll/pitch loop underneath.
+    optimum : ``"never"``, ``"auto"`` or ``"always"``
+        Also compute the identified model's own optimum at the control rate (~10-20 ms) and answer
+        it when the model is off the grid (``auto``) or always; default: the table's answer only.
 
     Returns
     -------
     dict
         ``uavsim identify --json``: ``loop``, ``class``, ``params`` (K, T_prop, T1, tau in s),
-        ``gains`` (kp, kd, derivative_filter_hz in session units), ``oscillation``, ``response``, ...
+        ``gains`` (kp, kd, derivative_filter_hz in session units), ``gains_source``, ``table``,
+        ``oscillation``, ``response``, ...
     """
-    from uavsim.learning.identify import identify_session as _identify
+    from uavsim.ident.session import identify_session as _identify
 
-    return _identify(session, model_dir=models, run=run, attitude_class=attitude_class)
+    return _identify(session, models=models, run=run, attitude_class=attitude_class, optimum=optimum)
 
 
 def plot_identification(session: PathLike, answer: dict[str, Any], png: PathLike) -> str:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import datetime as _dt
 from typing import Any
 
-__all__ = ["UserError", "short_repr", "type_name"]
+__all__ = ["UserError", "NoOscillation", "short_repr", "type_name"]
 
 
 class UserError(Exception):
@@ -48,3 +48,7 @@ def type_name(value: Any) -> str:
     if isinstance(value, _dt.date | _dt.time):
         return "date/time"
     return type(value).__name__
+
+
+class NoOscillation(UserError):
+    """A relay run holds no usable oscillation (too short, no switching, clipped, switched on noise)."""

@@ -9,7 +9,7 @@ For each session folder of a set written by ``uavsim testbed sessions``:
   --models MODELS`` (the user's case), then ``uavsim gap COPY``.
 
 Both call the same functions as those commands (``uavsim.gap.workflow.run_gap``,
-``uavsim.learning.identify``). One JSON line per session and condition goes to
+``uavsim.ident.session``). One JSON line per session and condition goes to
 ``--log``; the summary tables (markdown) go to stdout.
 
     python docs/results/gap_testbed_baseline.py out/testbed-dev --models training/runs --log out/baseline.jsonl
@@ -30,7 +30,7 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
 from uavsim.gap.workflow import run_gap
-from uavsim.learning.identify import identify_session, write_model
+from uavsim.ident.session import identify_session, write_model
 
 
 def truth_label(t: dict) -> str:
@@ -71,7 +71,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int) -> dict:
             with tempfile.TemporaryDirectory() as tmp:
                 copy = Path(tmp) / folder.name
                 shutil.copytree(folder, copy)
-                ans = identify_session(copy, model_dir=models)
+                ans = identify_session(copy, models=models)
                 write_model(copy, ans)
                 rec["identified"] = {**ans["params"], "noise_std": ans["noise_std"], "class": ans["class"]}
                 res = run_gap(read_session(copy), seed=seed)

@@ -139,7 +139,7 @@ def export_gains(ans: dict[str, Any], autopilot: str, *, cmd_scale: float | None
         ``S``, the autopilot's inner output units per session command unit (``_S_UNIT``).
     hover_thrust : float
         Altitude only, instead of ``cmd_scale``: u is normalized thrust and ``S = g / hover_thrust``.
-    gains_key : which gains of the answer (``gains``, ``gains_best_fit``, ``gains_measured_point``)
+    gains_key : which gains of the answer (``gains``, ``gains_table``, ``gains_optimum``, ``gains_measured_point``)
 
     Raises
     ------

@@ -31,7 +31,7 @@ def register(subparsers) -> None:
                                                                  "ArduPilot)")
     p.add_argument("--cmd-scale", type=float, metavar="S", help="autopilot output units per session command unit")
     p.add_argument("--hover-thrust", type=float, metavar="H", help="altitude: normalized hover thrust (S = g / H)")
-    p.add_argument("--gains", default="gains", choices=["gains", "gains_best_fit", "gains_measured_point"],
+    p.add_argument("--gains", default="gains", choices=["gains", "gains_table", "gains_optimum", "gains_measured_point"],
                    help="which gains of the identification (default: gains)")
     p.add_argument("--models", help="with a session: exported model folder or root (as uavsim identify)")
     p.add_argument("--attitude-class", type=int, metavar="N", help="with a lateral session (as uavsim identify)")
@@ -51,9 +51,9 @@ def _answer(source: str, models: str | None, attitude_class: int | None) -> dict
         if not isinstance(ans, dict):
             raise UserError(f"{p}: not the JSON of `uavsim identify --json` (not an object)")
         return ans
-    from uavsim.learning.identify import identify_session
+    from uavsim.ident.session import identify_session
 
-    return identify_session(source, model_dir=models, attitude_class=attitude_class)
+    return identify_session(source, models=models, attitude_class=attitude_class)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,12 +1,14 @@
 """``uavsim identify SESSION``: class, lumped parameters and PD gains from a relay run.
 
 The session needs an np-mrft (or mrft) run at the beta the network was trained
-for. The JSON (``--json``) is that of the session format: ``loop``, ``class``,
-``params`` (K, T_prop, T1, tau), ``gains`` (kp, kd, derivative_filter_hz for the
-identified K), plus ``oscillation`` and ``run``. For inner loops ``class`` and
-``params`` are the best fit of the cycle and ``gains`` the least risky among the
-best fits' rule gains (``gains_class`` names whose; ``gains_best_fit`` are the
-rule on ``params``; ``uavsim.learning.identify.decide_gains``). ``--write-model`` stores the
+for. The JSON (``--json``) is that of the session format: ``loop``, ``class``
+(of least expected J under the network's softmax: ``--decision``), ``params`` (the class's lags with K and tau fitted to the
+measured point), ``gains`` (kp, kd, derivative_filter_hz for the identified K)
+and ``gains_source``: ``table`` (the grid's robust PD of the class at the control
+rate over the identified K, the real-time answer) or ``optimum`` (the fitted
+model's own optimum, with ``--optimum auto`` when the model is off the grid or
+``--optimum always``; its latency in ``gains_optimum``), plus ``oscillation`` and
+``run`` (``uavsim.ident``). ``--write-model`` stores the
 identified ``[model]`` in the session (``--force`` replaces an existing one).
 A lateral session closes over an attitude loop: ``--attitude-class N`` names
 its class (identify the roll or pitch session first); the answer's ``params``
@@ -36,6 +38,12 @@ def register(subparsers) -> None:
     p.add_argument("--attitude-class", type=int, metavar="N",
                    help="lateral sessions: the attitude class of the roll/pitch loop underneath "
                         "(from `uavsim identify` of its session); picks the network lateral/aNN")
+    p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
+                   help="also optimize the identified model's PD at the control rate (~10-20 ms) and answer it "
+                        "when the model is off the grid (auto) or always (default never: the table's answer)")
+    p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
+                   help="class decision: least expected J over the network's cost matrix (bayes) or the most likely "
+                        "class (argmax); default: the bundle's (the trainer's choice on validation)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -45,9 +53,10 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from uavsim.learning.identify import identify_session, write_model
+    from uavsim.ident.session import identify_session, write_model
 
-    ans = identify_session(args.session, model_dir=args.models, run=args.run, attitude_class=args.attitude_class)
+    ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
+                           optimum=args.optimum, decision=args.decision)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)
@@ -61,8 +70,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(ans)
         return 0
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
-           "period_s": ans["oscillation"]["period"], "amplitude": ans["oscillation"]["amplitude"]}
-    if "gains_class" in ans:
-        row["gains_class"] = ans["gains_class"]
+           "gains_source": ans["gains_source"], "period_s": ans["oscillation"]["period"],
+           "amplitude": ans["oscillation"]["amplitude"]}
     print_table([row])
     return 0

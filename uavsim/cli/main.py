@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("uavsim.cli.generate_cmd", "build a training set from a recipe (datasets/*.toml)"),
     "train": ("uavsim.cli.train_cmd", "train DNN-NP-MRFT networks from a recipe (training/*.toml)"),
     "identify": ("uavsim.cli.identify_cmd", "identify a loop from a session's NP-MRFT run (DNN-NP-MRFT)"),
+    "evaluate": ("uavsim.cli.evaluate_cmd", "identification on off-grid processes: J against each process's optimum"),
     "export-gains": ("uavsim.cli.export_gains_cmd", "write identified gains as PX4 or ArduPilot parameters"),
     "scenario": ("uavsim.cli.scenario_cmd", "visual-servoing scenarios (identify, tune, test)"),
     "gap": ("uavsim.cli.gap_cmd", "sim-vs-measured gap: name the effect the model lacks"),

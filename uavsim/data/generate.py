@@ -232,7 +232,8 @@ def _process_prediction(p: LumpedParams, beta: float, h: float) -> tuple[float, 
     return fourier_limit_cycle(p, beta, h)
 
 
-def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
+def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int, *,
+                      noise: tuple[np.ndarray, np.ndarray] | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Episodes of given (off-grid) processes through the generation path.
 
@@ -240,7 +241,10 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     episode settings and preprocessing apply; the gain is each process's own
     ``K`` (not randomized); the input length is the recipe grid's. The expected
     amplitude and period (noise level, tau_obs cap, episode length) come from the
-    exact relay cycle of each process (``fourier_limit_cycle``).
+    exact relay cycle of each process (``fourier_limit_cycle``). ``noise``, when
+    given, is each episode's noise kind (index into ``recipe.noise.kinds``) and
+    level (fraction of that amplitude) instead of the recipe's draw (which still
+    takes place: the other draws do not move).
 
     Returns
     -------
@@ -248,7 +252,8 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     meta : dict of per-episode draws (``K, bias, noise_kind, noise_level, y0, tau_obs, a_n``,
     (n,) arrays), ``noise_kinds``, ``diverged`` (n,), ``seed``, ``duration_s``, ``response``
     (n,) complex and ``response_period`` (n,) s (the fundamental response), ``harmonics_y``,
-    ``harmonics_u`` (n, HARMONICS) complex (``preprocess.CycleFeatures``).
+    ``harmonics_u`` (n, HARMONICS) complex (``preprocess.CycleFeatures``), and ``y``, ``u`` (n, T)
+    when the recipe keeps raw traces.
     """
     if not params:
         raise UserError("simulate_features needs at least one process")
@@ -265,6 +270,9 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
     kind = rng.choice(len(w), size=n, p=w / w.sum()).astype(np.int8)
     level = rng.uniform(*recipe.noise.level, n)
     level[np.array([recipe.noise.kinds[k] == "none" for k in kind], dtype=bool)] = 0.0
+    if noise is not None:
+        kind = np.asarray(noise[0], dtype=np.int8).reshape(n)
+        level = np.asarray(noise[1], dtype=np.float64).reshape(n)
     y0 = rng.uniform(-1.0, 1.0, n) * recipe.randomize.y0 * a0
     effect_params = {f"{i}_{fx.name}/{k}": rng.uniform(v[0], v[1], n)
                      for i, fx in enumerate(recipe.effects) for k, v in fx.params.items() if isinstance(v, tuple)}
@@ -296,5 +304,7 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int
             "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
             "response": res["response"], "response_period": res["response_period"],
             "harmonics_y": res["harmonics_y"], "harmonics_u": res["harmonics_u"]}
+    if "y" in res:
+        meta["y"], meta["u"] = res["y"], res["u"]
     return res["X"], res["period"], res["amplitude"], res["ok"], meta
 

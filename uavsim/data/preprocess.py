@@ -21,7 +21,7 @@ the last ``RESPONSE_CYCLES`` steady cycles. For a linear process that ratio is
 its frequency response ``G(j w)`` at the cycle's frequency ``w`` whatever the
 relay did (bias, ``tau_obs``, ``a_n``, sampling), and zero-mean noise averages
 out of it; the input is shape only, and the gain comes back from the response
-and the identified class's own ``|G(j w)|`` (``uavsim.learning.identify``).
+and the identified class's own ``|G(j w)|`` (``uavsim.ident``).
 
 Departures from the authors' scheme (NOTES.md section 2), and why:
 
@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.errors import UserError
+from uavsim.errors import NoOscillation, UserError
 from uavsim.noise.analysis import cycle_harmonics
 
 INPUT_RATE_HZ = 200.0  # inputs are built from control-rate samples
@@ -69,10 +69,6 @@ RESPONSE_CYCLES = 4
 HARMONICS = 7
 #: harmonics are measured (and scored) strictly below this fraction of the Nyquist frequency
 HARMONIC_NYQUIST_FRACTION = 0.8
-
-
-class NoOscillation(UserError):
-    """The traces hold no usable relay oscillation (too short, no switching, garbage)."""
 
 
 @dataclass
@@ -102,7 +98,7 @@ class CycleFeatures:
         ``(u - bias) / h`` over the same cycles (``waveform_harmonics``). A relay's square
         command excites the loop at ``k w`` too, so the response at several frequencies comes
         for free: it tells delay (phase growing with frequency) from lag (phase levelling off),
-        which the cycle's shape alone barely does (``uavsim.learning.identify.select_class``).
+        which the cycle's shape alone barely does (``uavsim.ident``).
     """
 
     x: np.ndarray
@@ -116,6 +112,23 @@ class CycleFeatures:
     response_cycles: int = 0
     harmonics_y: np.ndarray | None = None
     harmonics_u: np.ndarray | None = None
+
+
+def held_response(G, omega, rate_hz: float) -> np.ndarray:
+    """What a controller at ``rate_hz`` measures of a process response ``G(j w)``: its command is held.
+
+    A held command's fundamental is its samples' times ``sinc(w Ts / 2) e^{-j w Ts / 2}``, so the
+    sampled output over the command's samples is ``G(j w)`` times that (aliases neglected: the
+    cycles here are 28 samples or longer). Shapes broadcast.
+    """
+    x = np.asarray(omega, dtype=np.float64) / (2.0 * rate_hz)
+    return np.asarray(G) * np.sinc(x / np.pi) * np.exp(-1j * x)
+
+
+def process_response(response, response_period, *, rate_hz: float = INPUT_RATE_HZ) -> np.ndarray:
+    """``G(j w)`` from a measured ``CycleFeatures.response`` at ``w = 2 pi / response_period``: the hold removed."""
+    w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
+    return np.asarray(response) / held_response(1.0, w, rate_hz)
 
 
 def input_length(grid, margin: float = LENGTH_MARGIN) -> int:

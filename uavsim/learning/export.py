@@ -6,6 +6,8 @@ An exported model is a folder:
   the next Linear layer, Dropout gone) as plain float32 arrays: ``W0, b0, W1, ...``
   stored input-major ``(in, out)``, and the period features' ``rbf_centres`` and
   ``rbf_width``. numpy alone runs it (``Predictor``); this is what identification uses.
+  It also holds the arrays the trainer hands over for identification (``J``: the
+  cost matrix of the class decision, ``uavsim.ident.select``);
 * ``model.onnx``: the same network for ONNX runtimes (opset 17, dynamic batch),
   input ``x`` (B, C, L) float32, output ``activations`` (B, n_classes);
 * ``model.pt``: the same network as TorchScript, for libtorch;
@@ -61,7 +63,8 @@ def _atomic_write_bytes(path: Path, writer) -> None:
             os.unlink(tmp)
 
 
-def export_model(net, meta: dict[str, Any], out_dir: str | os.PathLike) -> Path:
+def export_model(net, meta: dict[str, Any], out_dir: str | os.PathLike, *,
+                 arrays: dict[str, np.ndarray] | None = None) -> Path:
     """Write ``weights.npz``, ``model.onnx``, ``model.pt`` (TorchScript) and ``meta.json`` into ``out_dir``.
 
     Parameters
@@ -75,6 +78,8 @@ def export_model(net, meta: dict[str, Any], out_dir: str | os.PathLike) -> Path:
         JSON-serializable description; must hold ``channels`` and ``input_length``.
     out_dir : path-like
         Target folder (created).
+    arrays : dict or None
+        More float arrays stored in ``weights.npz`` beside the network (e.g. ``J``).
 
     Returns
     -------
@@ -110,7 +115,7 @@ def export_model(net, meta: dict[str, Any], out_dir: str | os.PathLike) -> Path:
                 _atomic_write_bytes(out / ONNX_FILE, lambda p: Path(p).write_bytes(onnx))
         layers = _numpy_layers(exported, meta)
         if layers is not None:
-            _write_weights(out / WEIGHTS_FILE, layers)
+            _write_weights(out / WEIGHTS_FILE, layers, arrays)
             files.append(WEIGHTS_FILE)
         elif (out / WEIGHTS_FILE).exists():
             (out / WEIGHTS_FILE).unlink()  # a stale file of another network must not be read
@@ -137,8 +142,12 @@ def _onnx_bytes(module, example) -> bytes:
     return buf.getvalue()
 
 
-def _write_weights(path: Path, net: dict[str, Any]) -> None:
+def _write_weights(path: Path, net: dict[str, Any], extra: dict[str, np.ndarray] | None = None) -> None:
     arrays: dict[str, np.ndarray] = {"format": np.array(WEIGHTS_FORMAT), "n_layers": np.array(len(net["layers"]))}
+    for k, v in (extra or {}).items():
+        if k in arrays or (k[:1] in ("W", "b") and k[1:].isdigit()) or k.startswith("rbf_"):
+            raise ValueError(f"{k!r} is a name of the network's own arrays")
+        arrays[k] = np.asarray(v, dtype=np.float64)
     for j, (W, b) in enumerate(net["layers"]):
         arrays[f"W{j}"], arrays[f"b{j}"] = W, b
     c, w = net["rbf"] if net["rbf"] is not None else (np.zeros(0, np.float32), np.float32(0.0))

@@ -7,7 +7,7 @@
   (``training.png`` beside every exported network).
 
     from uavsim.learning.figures import identification_png
-    ans = identify_session("scenarios/sessions/altitude-npmrft", model_dir="training/runs/small")
+    ans = identify_session("scenarios/sessions/altitude-npmrft", models="training/runs/small")
     identification_png("scenarios/sessions/altitude-npmrft", ans, "identify.png")
 """
 
@@ -69,9 +69,8 @@ def identification_png(session: str | os.PathLike, ans: dict[str, Any], out: str
     near the cycle, the measured point (held response with the zero-order hold
     removed) and the ray ``arg G = -pi + asin(beta)`` a relay puts the cycle on.
     """
-    from uavsim.data.preprocess import INPUT_RATE_HZ
+    from uavsim.data.preprocess import INPUT_RATE_HZ, held_response
     from uavsim.formats.session import read_session
-    from uavsim.learning.identify import held_response
     from uavsim.lumped.frequency import freq_response_batch
     from uavsim.lumped.params import loop_family
 

@@ -6,8 +6,14 @@ optimizer. Training follows the authors' code (NOTES.md section 2): Adam, lr
 multiplied by ``lr_decay`` every ``lr_step_epochs``, a J-weighted loss
 (``uavsim.learning.loss``). A seeded ``val_fraction`` of the set is held out for
 early stopping on the validation **mean J** (the closed-loop cost of the
-predicted class for the true one), not on accuracy: two wrong classes are not
-equally wrong.
+answered class for the true one), not on accuracy: two wrong classes are not
+equally wrong. The answered class is the one identification answers: least
+expected J under the network's softmax (``uavsim.learning.decision``, Bayes),
+unless the most likely class (argmax) has the lower mean J on the validation set
+(a belief too poor to weigh costs with); both are reported (``*_bayes``,
+``*_argmax``). The belief's temperature is fitted to the validation set each
+epoch; the exported ``weights.npz`` carries the set's ``J`` and the best epoch's
+temperature, ``meta.json`` its decision.
 
 Every epoch writes ``OUT/checkpoint.pt`` (model, optimizer, schedule, RNG
 states, history; atomically), so ``--resume`` continues exactly where an
@@ -42,6 +48,7 @@ import torch
 
 from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
+from uavsim.learning.decision import decide, fit_temperature
 from uavsim.learning.export import export_model
 from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
@@ -322,23 +329,28 @@ def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str
 
 
 def gain_metrics(pred: np.ndarray, data: TrainData, idx: np.ndarray) -> dict[str, float]:
-    """Error of the gains identification picks, ``|kp / kp_true - 1|`` and the same for kd (median, p95).
+    """Error of the gains identification answers, ``|kp / kp_true - 1|`` and the same for kd (median, p95).
 
-    For samples ``idx`` predicted as ``pred``: the rule on the predicted class's model fitted to
-    the sample's measured response (``uavsim.learning.identify``), against the true class's
-    rule gains over the true ``K``. Empty when the set has no response (older files) or is
-    lateral.
+    For samples ``idx`` predicted as ``pred``: the table's robust PD of the predicted class over
+    the gain fitted to the sample's measured response with that class's lags (``uavsim.ident``),
+    against the true class's over the true ``K``. Empty when the set has no response or no table
+    (older files) or is lateral.
     """
-    from uavsim.learning.identify import fit_response, model_gains, rule_of
+    from uavsim.data.preprocess import process_response
+    from uavsim.lumped.frequency import freq_response_batch
 
     loop = data.attrs.get("loop")
-    if len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude"):
+    c = data.classes
+    if (len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude")
+            or "table_robust_kp" not in c):
         return {}
-    model = fit_response(data.response[idx], data.response_period[idx], pred, data.classes, loop)
-    g = model_gains(model, loop, *rule_of({"loop": loop, "beta": data.attrs.get("beta")}))
+    w = 2 * np.pi / data.response_period[idx]
+    G0 = freq_response_batch(loop, w[:, None], K=1.0, T_prop=c["T_prop"][pred], T1=c["T1"][pred], tau=0.0)[:, 0]
+    K_hat = np.abs(process_response(data.response[idx], data.response_period[idx])) / np.abs(G0)
     out = {}
     for k in ("kp", "kd"):
-        e = np.abs(g[k] / (np.asarray(data.classes[k], dtype=np.float64)[data.labels[idx]] / data.K[idx]) - 1.0)
+        col = np.asarray(c[f"table_robust_{k}"], dtype=np.float64)
+        e = np.abs((col[pred] / K_hat) / (col[data.labels[idx]] / data.K[idx]) - 1.0)
         out.update({f"{k}_err_median": float(np.median(e)), f"{k}_err_p95": float(np.percentile(e, 95))})
     return out
 
@@ -381,16 +393,14 @@ def _atomic_save(obj: Any, path: Path) -> None:
             os.unlink(tmp)
 
 
-def _predict(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> np.ndarray:
-    """Predicted classes (N,)."""
+def _activations(net: IdentNet, X: torch.Tensor, device: torch.device, batch: int = 2048) -> np.ndarray:
+    """The network's activations (N, n_classes) float32."""
     net.eval()
-    cls = []
+    act = []
     with torch.inference_mode():
         for i in range(0, X.shape[0], batch):
-            cls.append(net(X[i : i + batch].to(device)).argmax(1).cpu())
-    if not cls:
-        return np.zeros(0, dtype=np.int64)
-    return torch.cat(cls).numpy()
+            act.append(net(X[i : i + batch].to(device)).float().cpu())
+    return torch.cat(act).numpy()
 
 
 def _progress(iterable, **kw):
@@ -422,8 +432,16 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
         cycles = int(tomllib.loads(str(a.get("recipe", ""))).get("preprocess", {}).get("cycles", 1))
     except (tomllib.TOMLDecodeError, TypeError, ValueError):
         pass
+    from uavsim.learning.bundle import bundle_section
+
+    cyc = int(a.get("cycles_per_input", cycles))
+    ident = bundle_section(loop=a.get("loop", recipe.loop), grid_hash=str(a.get("grid_hash", "")),
+                           rate_hz=float(a.get("rate_hz") or 200.0), beta=a.get("beta"),
+                           input_length=cfg.input_length, cycles=cyc,
+                           att_class=int(a["att_class"]) if a.get("att_class") is not None else None)
     return {
-        "cycles": int(a.get("cycles_per_input", cycles)),
+        "identification": ident,
+        "cycles": cyc,
         "name": recipe.name,
         "loop": a.get("loop", recipe.loop),
         "grid_hash": a.get("grid_hash", ""),
@@ -443,10 +461,26 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
     }
 
 
-def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData,
-                 device: torch.device) -> dict[str, float]:
-    pred = _predict(net, X, device)
-    return {**class_metrics(pred, data.labels[idx], data.J), **gain_metrics(pred, data, idx)}
+def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData, device: torch.device, *,
+                 temperature: float | None = None, decision: str | None = None) -> dict[str, Any]:
+    """Metrics of identification's class decision, and of both decisions beside them (``*_bayes``, ``*_argmax``).
+
+    ``temperature``: the belief's (``uavsim.learning.decision``); None fits it to this set.
+    ``decision``: ``bayes`` or ``argmax``; None takes Bayes unless argmax has the lower mean J
+    on this set (validation: what the best epoch exports; the test set gets the exported ones).
+    """
+    true = data.labels[idx]
+    if X.shape[0] == 0:
+        return class_metrics(np.zeros(0, np.int64), true, data.J)
+    act = _activations(net, X, device)
+    T = fit_temperature(act, true) if temperature is None else float(temperature)
+    pred = {d: decide(act, data.J, decision=d, temperature=T).cls for d in ("bayes", "argmax")}
+    m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
+    if decision is None:
+        decision = "bayes" if m["bayes"]["mean_J"] <= m["argmax"]["mean_J"] else "argmax"
+    return {**m[decision], **gain_metrics(pred[decision], data, idx),
+            **{f"{k}_{d}": m[d][k] for d in pred for k in ("top1", "mean_J", "p95_J")},
+            "temperature": T, "decision": decision}
 
 
 def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dict[str, Any]:
@@ -544,7 +578,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             stale += 1
         if not quiet:
             print(f"{recipe.name} epoch {epoch + 1}: loss {rec['loss']:.4f}  val top1 {vm['top1']:.3f}  "
-                  f"mean J {vm['mean_J']:.4f}  p95 J {vm['p95_J']:.3f}  kp err median {vm.get('kp_err_median', math.nan):.3f}  "
+                  f"mean J {vm['mean_J']:.4f} ({vm.get('decision', '-')}; argmax {vm.get('mean_J_argmax', math.nan):.4f})  p95 J {vm['p95_J']:.3f}  kp err median {vm.get('kp_err_median', math.nan):.3f}  "
                   f"({rec['elapsed_s']:.0f} s)", file=sys.stderr)
         _atomic_save({
             "fingerprint": recipe.fingerprint(), "epoch": epoch, "model": net.state_dict(), "optim": opt.state_dict(),
@@ -559,7 +593,11 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     net.cpu()
     meta = _class_meta(data, recipe, cfg)
     meta.update({"best_epoch": best["epoch"], "val": {k[4:]: v for k, v in best.items() if k.startswith("val_")}})
-    export_model(net, meta, out)
+    if "decision" not in meta["val"]:  # a best epoch from a checkpoint written before the decision existed
+        meta["val"] = _val_metrics(net, Xva, va_idx, data, torch.device("cpu"))
+    T_best, decision = float(meta["val"]["temperature"]), str(meta["val"]["decision"])
+    meta["identification"]["class_decision"]["decision"] = decision
+    export_model(net, meta, out, arrays={"J": data.J, "temperature": np.float64(T_best)})
     from uavsim.learning.figures import training_curves_png
 
     training_curves_png(history, out / CURVES, title=f"{recipe.name}: {cfg.n_classes} {meta['loop']} classes, "
@@ -571,7 +609,9 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         "best_epoch": best["epoch"], "train_time_s": train_s, "device": device.type,
         "threads": torch.get_num_threads(), "seed": seed, "val": meta["val"], "out": str(out),
         "dataset": recipe.dataset, "curves": str(out / CURVES),
-        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1") if k in h} for h in history],
+        "history": [{k: h[k] for k in ("epoch", "loss", "val_mean_J", "val_top1", "val_decision", "val_mean_J_bayes",
+                                             "val_mean_J_argmax") if k in h}
+                    for h in history],
     }
     if recipe.test_dataset and not Path(recipe.test_dataset).is_file():
         # a missing held-out set must not throw away a finished training run
@@ -584,7 +624,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         if gi is not None and gt is not None and not np.array_equal(gi, gt):
             raise UserError(f"{recipe.test_dataset}: class subset differs from the training set's")
         report["test"] = _val_metrics(net, torch.from_numpy(test.X), np.arange(len(test.labels)), test,
-                                      torch.device("cpu"))
+                                      torch.device("cpu"), temperature=T_best, decision=decision)
         report["test_dataset"] = recipe.test_dataset
     Path(out / REPORT).write_text(json.dumps(report, indent=1))
     return report

@@ -101,7 +101,7 @@ def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str,
              **lateral: Any) -> dict[str, Any]:
     """Identify a saved relay session: ``{"class", "params", "gains", "identifier", ...}``.
 
-    ``method`` ``dnn`` calls ``uavsim.learning.identify.identify_session``
+    ``method`` ``dnn`` calls ``uavsim.ident.session.identify_session``
     (trained networks; ``lateral`` holds its ``attitude_class`` and ``attitude`` for a
     lateral session); ``mrft-df`` returns ``mrft_df`` (the describing-function
     rule, computed by the caller on the same run); ``auto`` tries the networks
@@ -109,7 +109,7 @@ def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str,
     """
     if method in ("dnn", "auto"):
         try:
-            from uavsim.learning.identify import identify_session
+            from uavsim.ident.session import identify_session
         except ImportError as exc:
             if method == "dnn":
                 raise UserError(f"DNN identification is not available ({exc}); "
@@ -117,7 +117,7 @@ def identify(session_path: Path, method: str, model_dir: str, mrft_df: dict[str,
             note = f"DNN identification not available ({exc})"
         else:
             try:
-                out = identify_session(session_path, model_dir=model_dir or None, **lateral)
+                out = identify_session(session_path, models=model_dir or None, **lateral)
                 out = dict(out)
                 out.setdefault("identifier", "dnn")
                 return out
@@ -218,11 +218,12 @@ def _unsteady(res: VisionResult, h: float, beta: float | None = None) -> str | N
     """Why the relay run's last cycles are not a steady relay oscillation, or None.
 
     ``preprocess.features`` must accept them, and with ``beta`` their phase must be one
-    the relay can produce (``uavsim.learning.identify.phase_lead``: an early-switched,
+    the relay can produce (``uavsim.ident.cycle.phase_lead``: an early-switched,
     noise-driven cycle lags clearly less).
     """
-    from uavsim.data.preprocess import NoOscillation, features
-    from uavsim.learning.identify import phase_refusal
+    from uavsim.data.preprocess import features
+    from uavsim.errors import NoOscillation
+    from uavsim.ident.cycle import phase_refusal
 
     try:
         f = features(res.y[0], res.u[0], RATE_HZ, h, 0.0, res.y.shape[1])
@@ -240,7 +241,7 @@ def _faster_than_grid(T0: float, loop: str, lateral: dict[str, Any] | None) -> s
     cycles faster than ``period_bounds`` allows: a faster cycle is
     the relay switching on noise, which a larger ``a_n`` can prevent.
     """
-    from uavsim.learning.identify import period_bounds
+    from uavsim.ident.bundle import period_bounds
     from uavsim.tuning.grid import load_grid
 
     if not math.isfinite(T0):
@@ -251,7 +252,7 @@ def _faster_than_grid(T0: float, loop: str, lateral: dict[str, Any] | None) -> s
         P = load_grid("lateral").lateral(int(lateral["attitude_class"])).period
     else:
         return None
-    lo = period_bounds({"period": P})[0]
+    lo = period_bounds(P)[0]
     return f"cycle period {T0:.3g} s, faster than any class ({lo:.3g} s)" if T0 < lo else None
 
 
@@ -312,17 +313,16 @@ def _lateral_networks(scn: Scenario, roll: dict[str, Any]) -> tuple[float | None
     if scn.identification.method == "mrft-df" or c is None or not roll.get("params"):
         return None, None
     try:
-        from uavsim.learning.identify import lateral_context, resolve_model_dir
+        from uavsim.ident.bundle import load_bundle, resolve_model_dir
 
-        resolve_model_dir("lateral", scn.identification.model_dir or None, int(c))
+        net = load_bundle(resolve_model_dir("lateral", scn.identification.model_dir or None, int(c)))
     except (ImportError, UserError) as exc:
         _log(f"  lateral: no network for attitude class {c} ({exc}); beta_lateral and the describing-function rule")
         return None, None
     p, g = roll["params"], roll["gains"]
     att = {"T_prop": p["T_prop"], "T1": p["T1"], "tau_in": p["tau"], "att_kp": g["kp"] * p["K"],
            "att_kd": g["kd"] * p["K"], "att_filter_hz": g["derivative_filter_hz"], "att_class": int(c)}
-    sub, _ = lateral_context(int(c))
-    return float(sub.beta), {"attitude_class": int(c), "attitude": att}
+    return float(net.rule.beta), {"attitude_class": int(c), "attitude": att}
 
 
 def identify_loop(scn: Scenario, loop: str, mode: str, workdir: Path, seed: int, extra: dict) -> dict[str, Any]:

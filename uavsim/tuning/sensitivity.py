@@ -17,7 +17,7 @@ response ``|G(j w)|`` at the oscillation frequency ``w``. Two estimates
   keep their loop gain at the MRFT point, the normalization the grid's J
   spacing was designed in (processes gain-normalized at their MRFT phase);
 * ``"response"``: the class's lags fitted at the measured frequency,
-  ``K_hat = |G(j w)| / |G_i(j w)|_{K=1}`` (``uavsim.learning.identify.fit_response``).
+  ``K_hat = |G(j w)| / |G_i(j w)|_{K=1}`` (``uavsim.ident.response.fit_response``).
 
 Gains applied: ``kp_i / K_hat``, ``kd_i / K_hat``. Here ``w`` is the true
 process's DF MRFT frequency at the grid's beta. Between a class and itself both

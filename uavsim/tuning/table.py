@@ -194,7 +194,7 @@ class OptimalTable:
         """``K_hat = |G(j w)| / gain_at_omega[cls]``: the process gain the table's J assumes.
 
         ``response_magnitude``: the measured ``|G(j w)|`` at the cycle's frequency (output units
-        per command unit, the hold removed: ``uavsim.learning.identify.held_response``).
+        per command unit, the hold removed: ``uavsim.data.preprocess.process_response``).
         """
         if self.sub:
             raise UserError("a lateral table has one sub-table per attitude class: use table.lateral(a)")

@@ -1,0 +1,142 @@
+"""The relay cycle identification uses, and the checks that refuse what is not one.
+
+``extract_cycle`` runs THE preprocessing (``uavsim.data.preprocess.features``:
+same resampling, edges, normalization and input length as the training sets,
+with the bundle's settings) and then refuses, with ``NoOscillation`` (one line,
+never a guess):
+
+* a clipped output (``SATURATION_FRACTION`` of the cycle at its top or bottom level);
+* a period no class of the network comes near (``ModelBundle.period_bounds``): the
+  relay switching on noise, or a process outside the grid's box;
+* a phase the relay cannot have put the loop at (``phase_lead`` above
+  ``PHASE_LEAD_MAX_DEG``): switched early, on noise, and then the "response"
+  ``Y1 / (h U1)`` is partly the noise's correlation with the relay.
+
+When the run's last cycles are refused, the steady cycles before them are
+tried, up to ``MAX_CYCLES_DROPPED`` cycles back (a burst of noise can break the
+last cycle of a run whose earlier ones are fine); the answer's ``oscillation``
+``start``/``stop`` say which samples were used.
+
+    from uavsim.ident.cycle import extract_cycle
+    f = extract_cycle(y, u, rate_hz=200.0, h=1.0, bias=0.0, bundle=b)
+    f.x, f.period, f.response
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from uavsim.data.preprocess import MIN_CYCLE_SAMPLES, CycleFeatures, features, held_response
+from uavsim.errors import NoOscillation, UserError
+from uavsim.ident.bundle import ModelBundle
+
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "extract_cycle", "phase_lead", "phase_refusal",
+           "period_refusal", "saturation_refusal"]
+
+#: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
+SATURATION_FRACTION = 0.35
+_SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
+#: a cycle lagging more than this (deg) less than the relay's phase was switched by noise (``phase_lead``);
+#: NP-MRFT's own cycles lead by up to ~55 deg with a user's settings (a long observation window and a
+#: relay bias of half h, even without noise: ``uavsim evaluate``), and identify as well as the others
+PHASE_LEAD_MAX_DEG = 70.0
+#: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
+MAX_CYCLES_DROPPED = 3
+
+
+def saturation_refusal(y: np.ndarray) -> str | None:
+    """Why a cycle's output ``y`` is clipped (sits at its extreme level for long), or None."""
+    y = np.asarray(y, dtype=np.float64)
+    if y.size < 4:
+        return None
+    hi, lo = float(y.max()), float(y.min())
+    band = _SAT_BAND * (hi - lo)
+    for name, frac in (("top", np.mean(y >= hi - band)), ("bottom", np.mean(y <= lo + band))):
+        if frac > SATURATION_FRACTION:
+            return f"output saturated: the cycle sits at its {name} level {100 * frac:.0f}% of the time"
+    return None
+
+
+def period_refusal(period: float, bounds: tuple[float, float]) -> str | None:
+    """Why a cycle of ``period`` (s) is none the classes give (outside ``bounds``), or None."""
+    lo, hi = bounds
+    if lo <= period <= hi:
+        return None
+    return (f"cycle period {period:.3g} s is outside what the grid's classes give ({lo:.3g}-{hi:.3g} s): the relay "
+            "switched on noise, or the process is outside the grid's box")
+
+
+def phase_lead(response: complex, response_period: float, beta: float, rate_hz: float = 200.0) -> float:
+    """How far (deg) the measured response lags less than a relay at ``beta`` puts it, ``arg G - (-pi + asin beta)``.
+
+    A relay test puts the loop where ``arg G(jw) = -pi + asin(beta)`` (NP-MRFT's
+    observation window and ``a_n`` switch later, so more lag; sampling moves it by a
+    few degrees). A cycle that lags clearly less was switched early, by noise.
+    """
+    w = 2.0 * math.pi / float(response_period)
+    ph = float(np.angle(complex(response) / held_response(1.0, w, rate_hz)))
+    ph = ph - 2.0 * math.pi if ph > 0 else ph  # a relay cycle lags between pi/2 and 2 pi
+    return math.degrees(ph - (-math.pi + math.asin(float(beta))))
+
+
+def phase_refusal(response: complex, response_period: float, beta: float | None, rate_hz: float = 200.0) -> str | None:
+    """Why a cycle of this response is not one a relay at ``beta`` produces (``phase_lead`` above
+    ``PHASE_LEAD_MAX_DEG``: switched early, on noise), or None; None without a ``beta``."""
+    if beta is None:
+        return None
+    lead = phase_lead(response, response_period, beta, rate_hz)
+    if lead > PHASE_LEAD_MAX_DEG:
+        return f"the cycle lags {lead:.0f} deg less than a relay at beta={beta:g} puts it: the relay switched early, on noise"
+    return None
+
+
+def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
+                  beta: float | None = None) -> CycleFeatures:
+    """The network input and the measured response of a relay run, checked (module docstring).
+
+    Parameters
+    ----------
+    y, u : (T,) measurement and relay command as the controller saw / computed them
+    rate_hz : control rate of the samples, Hz
+    h, bias : relay amplitude and bias, command units
+    bundle : the network's bundle (preprocessing settings, classes' periods, the relay's beta)
+    beta : the run's MRFT parameter; must match the network's when given
+
+    Raises
+    ------
+    NoOscillation
+        No usable relay oscillation (see module docstring and ``uavsim.data.preprocess``).
+    UserError
+        A run at another ``beta`` than the network's.
+    """
+    nb = bundle.rule.beta
+    if beta is not None and abs(float(beta) - nb) > 1e-6:
+        raise UserError(f"the run used beta={beta} but the {bundle.loop} network was trained at beta={nb:g}")
+    y = np.asarray(y, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    pos = (u - bias) > 0
+    edges = np.flatnonzero(pos[1:] & ~pos[:-1]) + 1
+    first = None
+    # the last cycles, else the last steady ones before them (noise can break a run's last cycle): cut
+    # at each rising edge back to MAX_CYCLES_DROPPED typical cycles before the end (a chattering burst
+    # has many edges)
+    d = np.diff(edges) * (bundle.input_rate_hz / rate_hz)
+    d = d[d >= MIN_CYCLE_SAMPLES]
+    typical = float(np.median(d)) * rate_hz / bundle.input_rate_hz if d.size else 0.0
+    earliest = len(y) - (MAX_CYCLES_DROPPED + 0.5) * typical
+    cuts = [len(y)] + [int(e) + 1 for e in edges[::-1][: max(len(edges) - bundle.cycles - 2, 0)] if e >= earliest]
+    for stop in cuts:
+        try:
+            f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles)
+            why = (saturation_refusal(y[f.start : f.stop])
+                   or period_refusal(f.period, bundle.period_bounds())
+                   or phase_refusal(f.response, f.response_period, nb, bundle.input_rate_hz))
+            if why:
+                raise NoOscillation(why)
+        except NoOscillation as exc:
+            first = first or exc
+            continue
+        return f
+    raise first

@@ -1,0 +1,229 @@
+"""Identification of a flight session: class, model and PD gains from its relay run.
+
+From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run:
+
+1. the last steady cycle, exactly as the training sets were built, checked
+   (``uavsim.ident.cycle.extract_cycle``);
+2. the class: the answer of least expected J under the network's softmax, over the
+   bundle's cost matrix (``uavsim.ident.select.decide_class``; ``decision="argmax"``: the most likely
+   class, also what a bundle exported without the matrix answers);
+3. the gains: the table's robust PD of the class over the estimated gain
+   ``K_hat`` (``uavsim.ident.gains``), the real-time answer. With ``optimum``
+   the fitted model's own optimum at the control rate is computed too (~10-20 ms,
+   its latency in the answer) and answered when the fitted model is off the
+   grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
+   or always (``optimum="always"``);
+4. the model: the class's lags with the gain and delay fitted to the measured
+   point (``params``: what ``write_model`` stores and the gap workflow simulates).
+
+A session without a usable oscillation is an error (``NoOscillation``, a
+``UserError``), never a guess.
+
+    from uavsim.ident import identify_session, write_model
+    ans = identify_session("scenarios/sessions/altitude-npmrft", models="training/runs/small")
+    ans["class"], ans["params"]["K"], ans["gains"]["kp"], ans["gains_source"]
+    write_model("scenarios/sessions/altitude-npmrft", ans)      # adds the [model] table
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uavsim.data.preprocess import CycleFeatures
+from uavsim.errors import UserError
+from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
+from uavsim.ident.cycle import extract_cycle
+from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
+from uavsim.ident.select import decide_class
+
+__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
+
+#: when the fitted model's optimum is computed and answered (``identify_cycle``)
+OPTIMUM_MODES = ("never", "auto", "always")
+#: ``optimum="auto"``: the fitted model is off the grid when its delay differs from its class's by more
+#: than this (s) and this fraction of the class's (a grid level of delay is ~40-60% apart)
+OFF_GRID_TAU = (0.002, 0.25)
+_GAIN_KEYS = ("kp", "kd", "derivative_filter_hz")
+
+
+def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
+    return {k: float(np.asarray(g[k]).ravel()[0]) for k in keys}
+
+
+def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
+                   attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
+    """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
+
+    Parameters
+    ----------
+    f : CycleFeatures
+        The checked cycle.
+    bundle : ModelBundle
+        The network and its tables.
+    optimum : ``"never"``, ``"auto"`` or ``"always"``
+        Whether the fitted model's optimum is computed and answered (module docstring).
+    attitude : dict or None
+        Lateral only: the flight's attitude loop when known better than the bundle's
+        (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
+        fitted model and its optimum, not the table's answer.
+    decision : ``"bayes"``, ``"argmax"`` or None
+        The class decision (``uavsim.ident.select``); None: the bundle's (``ModelBundle.decision``).
+
+    Returns
+    -------
+    dict: ``loop``, ``class``, ``params`` (the fitted model), ``gains`` (kp, kd,
+    derivative_filter_hz), ``gains_source`` (``table`` or ``optimum``), ``table`` (class,
+    ``K_hat``, rate), ``gains_table``, ``gains_optimum`` (when computed, with ``latency_ms`` and
+    ``ise``), ``gains_measured_point``, ``off_grid``, ``class_params``, ``decision`` (``decision``,
+    ``expected_J`` of the class answered, ``class_argmax``, ``softmax`` of the class answered),
+    ``softmax_top``, ``oscillation`` and ``response``.
+    """
+    if optimum not in OPTIMUM_MODES:
+        raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
+    act = bundle.predictor.activations(f.x)
+    dec = decide_class(bundle, act, decision=decision)
+    c = int(dec.cls[0])
+    model = fitted_model(bundle, [c], np.array([f.response]), np.array([f.response_period]), attitude=attitude)
+    K_hat = model["K"]
+    if not (np.isfinite(K_hat[0]) and K_hat[0] > 0):
+        raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
+    g_tab = table_gains(bundle, [c], K_hat)
+    tau, tau_c = float(model["tau"][0]), float(model["tau_class"][0])
+    off = abs(tau - tau_c) > max(OFF_GRID_TAU[0], OFF_GRID_TAU[1] * tau_c)
+    ans: dict[str, Any] = {"loop": bundle.loop, "class": c}
+    if bundle.loop == "lateral":
+        ans["attitude_class"] = bundle.att_class
+        ans["params"] = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "T2", "tau", "tau_in")}
+        ans["attitude"] = {k: float(model[k][0]) for k in ("att_kp", "att_kd", "att_filter_hz")}
+        ans["class_params"] = {k: float(bundle.column(k)[c]) for k in ("T2", "tau")}
+    else:
+        ans["params"] = {k: float(model[k][0]) for k in ("K", "T_prop", "T1", "tau")}
+        ans["class_params"] = {k: float(bundle.column(k)[c]) for k in ("T_prop", "T1", "tau")}
+    ans["gains"] = _floats(g_tab)
+    ans["gains_source"] = "table"
+    ans["table"] = {"class": c, "K_hat": float(K_hat[0]), "rate_hz": bundle.rate_hz, "answer": "robust",
+                    "gain_estimate": "K_hat = |G(jw)| / |G_class(jw)| at the measured w"}
+    ans["gains_table"] = _floats(g_tab)
+    ans["off_grid"] = bool(off)
+    if optimum == "always" or (optimum == "auto" and off):
+        t0 = time.perf_counter()
+        opt = model_optimum(bundle, model, start=g_tab)
+        ms = 1e3 * (time.perf_counter() - t0)
+        if np.isfinite(opt.ise[0]):
+            ans["gains_optimum"] = {**_floats({"kp": opt.kp, "kd": opt.kd,
+                                               "derivative_filter_hz": opt.derivative_filter_hz}),
+                                    "ise": float(opt.ise[0]), "latency_ms": ms}
+            ans["gains"] = {k: ans["gains_optimum"][k] for k in _GAIN_KEYS}
+            ans["gains_source"] = "optimum"
+    gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), rule=bundle.rule,
+                              rate_hz=bundle.input_rate_hz)
+    ans["gains_measured_point"] = _floats(gm)
+    ans["decision"] = {"decision": dec.decision, "expected_J": None if np.isnan(dec.expected_J[0]) else
+                       float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c])}
+    ans["softmax_top"] = float(dec.p[0, c])
+    ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
+                          "stop": f.stop}
+    ans["response"] = {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
+                       "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}
+    return ans
+
+
+def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
+                    beta: float | None = None, optimum: str = "never",
+                    attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
+    """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
+
+    ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
+    ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's).
+    """
+    f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
+    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision)
+
+
+def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
+                     attitude_class: int | None = None, attitude: dict[str, float] | None = None,
+                     optimum: str = "never", decision: str | None = None) -> dict[str, Any]:
+    """Identify the loop of a session from its relay run (module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        Session folder (or its ``session.toml``).
+    models : path-like or None
+        Exported model folder or a root with ``altitude/``, ``attitude/``, ``lateral/aNN/``
+        (default ``uavsim.ident.bundle.default_model_root()``).
+    run : str or None
+        File name of the run to use (default: the first np-mrft run, else the first mrft run).
+    attitude_class : int or None
+        Lateral sessions only (required): the attitude class of the loop the lateral one closes
+        over (what identification of its roll or pitch session gave); picks ``lateral/aNN``.
+    attitude : dict or None
+        Lateral only: the flight's attitude loop when known (``identify_cycle``).
+    optimum, decision : str
+        ``identify_cycle``'s.
+
+    Returns
+    -------
+    dict
+        The JSON of ``uavsim identify --json`` (docs/formats/session.md): ``identify_cycle``'s
+        answer with the session's ``loop``, ``run``, ``model_dir``, ``had_model``, ``noise_std``.
+    """
+    from uavsim.formats.session import read_session
+    from uavsim.lumped.params import loop_family
+
+    s = read_session(path)
+    fam = loop_family(s.loop)
+    if fam == "lateral" and attitude_class is None:
+        raise UserError(f"session {path} is {s.loop}: pass the attitude class its loop closes over "
+                        "(--attitude-class N, from `uavsim identify` of the roll/pitch session)")
+    relays = [r for r in s.runs if r.spec.kind in ("np-mrft", "mrft")]
+    if run is not None:
+        relays = [r for r in relays if r.spec.file == run]
+        if not relays:
+            raise UserError(f"session {path}: no np-mrft/mrft run with file {run!r}")
+    if not relays:
+        raise UserError(f"session {path}: no np-mrft or mrft run to identify from")
+    relays.sort(key=lambda r: r.spec.kind != "np-mrft")
+    r = relays[0]
+    d = resolve_model_dir(fam, models, attitude_class)
+    b = load_bundle(d)
+    if b.loop != fam:
+        raise UserError(f"{d} holds a {b.loop} network, the session is {s.loop}")
+    if fam == "lateral" and b.att_class not in (None, attitude_class):
+        raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
+    ans = identify_arrays(r.data.y, r.data.u, rate_hz=s.control_rate_hz, h=float(r.spec.h),
+                          bias=float(r.spec.bias or 0.0), bundle=b, beta=r.spec.beta, optimum=optimum,
+                          attitude=attitude, decision=decision)
+    ans["loop"] = s.loop
+    ans["run"] = r.spec.file
+    ans["model_dir"] = str(d)
+    ans["had_model"] = s.model is not None
+    # NP-MRFT a_n is a noise amplitude (2 std for Gaussian noise, uavsim.noise.models)
+    ans["noise_std"] = float(r.spec.a_n or 0.0) / 2.0
+    return ans
+
+
+def write_model(path: str | os.PathLike, ans: dict[str, Any], *, overwrite: bool = False) -> Path:
+    """Write the identified model (``ans["params"]``) as the session's ``[model]`` table.
+
+    Refuses to replace an existing ``[model]`` unless ``overwrite``.
+    """
+    from uavsim.formats.session import ModelSpec, read_session, write_session
+
+    s = read_session(path)
+    if s.model is not None and not overwrite:
+        raise UserError(f"session {path} already has a [model]; pass --force to replace it")
+    p = ans["params"]
+    model = ModelSpec(K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]),
+                      T2=p.get("T2"), noise_std=float(ans.get("noise_std", 0.0)))
+    folder = Path(path)
+    if folder.name == "session.toml":
+        folder = folder.parent
+    return write_session(replace(s, model=model), folder)

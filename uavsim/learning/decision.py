@@ -1,0 +1,142 @@
+"""The class decision of a cost-sensitive classifier: least expected J under its softmax.
+
+Many classes are near-equivalent for a true class (their robust table gains give
+J close to 1 on it), while a class a level too fast can be unstable on a slow
+one (J clipped to ``COST_CLIP[1]``, as the loss clips it). So the class answered
+is the minimum-expected-cost (Bayes) decision over the cost matrix ``J`` (rows:
+class answered, columns: true class; the dataset's, which the loss weighs), with
+the network's softmax as the belief:
+
+    p = softmax(a / T)       cost_i = sum_j p_j min(max(J_ij, 1), 1e3)       class = argmin_i cost_i
+
+The temperature ``T`` calibrates the belief (``fit_temperature``: least
+negative log-likelihood of the true classes of a held-out set). A J-weighted
+loss scales the activations by ``J`` inside its softmax, so ``softmax(a)`` of
+such a network is much flatter than its accuracy (a tiny network that is always
+right gives the right class p ~ 0.4), and the decision over it drifts to the
+classes of least average J; calibrated, it follows the network where the network
+is sure and hedges where it is not. ``decision="argmax"`` (the most likely class)
+is kept for comparison. numpy only: the trainer picks its best epoch on this
+decision and exports ``J`` and ``T``; identification (``uavsim.ident.select``)
+answers it.
+
+    from uavsim.learning.decision import decide, fit_temperature
+    T = fit_temperature(val_activations, val_labels)          # (m, n), (m,) -> float
+    d = decide(activations, J, temperature=T)                 # Decision: cls, expected_J, p
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavsim.errors import UserError
+
+__all__ = ["DECISIONS", "COST_CLIP", "TEMPERATURE_RANGE", "Decision", "softmax", "expected_cost", "fit_temperature",
+           "decide"]
+
+#: class decisions: least expected J (``bayes``), most likely class (``argmax``)
+DECISIONS = ("bayes", "argmax")
+#: J is clipped to this range as the loss clips it (an unstable pair costs 1e3)
+COST_CLIP = (1.0, 1e3)
+#: temperatures ``fit_temperature`` searches
+TEMPERATURE_RANGE = (0.02, 50.0)
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The class of each input and what the decision knew.
+
+    Attributes
+    ----------
+    cls : (m,) int64
+        Class answered.
+    expected_J : (m,) float64
+        Expected clipped J of the answered class under ``p`` (nan without a cost matrix).
+    p : (m, n) float64
+        The network's softmax.
+    decision : str
+        The decision made (``bayes`` or ``argmax``).
+    """
+
+    cls: np.ndarray
+    expected_J: np.ndarray
+    p: np.ndarray
+    decision: str
+
+
+def softmax(activations: np.ndarray, temperature: float = 1.0) -> np.ndarray:
+    """Softmax of ``activations / temperature`` over the last axis, (m, n) float64 (one input: (1, n))."""
+    a = np.atleast_2d(np.asarray(activations, dtype=np.float64)) / float(temperature)
+    e = np.exp(a - a.max(axis=1, keepdims=True))
+    return e / e.sum(axis=1, keepdims=True)
+
+
+def _clipped(J: np.ndarray, n: int) -> np.ndarray:
+    J = np.asarray(J, dtype=np.float64)
+    if J.shape != (n, n):
+        raise UserError(f"cost matrix J has shape {J.shape}, the network has {n} classes")
+    # an unstable pair (inf) or one not computed (nan) is the clip's worst cost
+    return np.clip(np.nan_to_num(J, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP)
+
+
+def expected_cost(p: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Expected clipped J of answering each class, ``sum_j p_j J[i, j]``: (m, n) from ``p`` (m, n) and ``J`` (n, n)."""
+    p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+    return p @ _clipped(J, p.shape[1]).T
+
+
+def fit_temperature(activations: np.ndarray, labels: np.ndarray) -> float:
+    """The temperature of least mean negative log-likelihood of ``labels`` (m,) under ``softmax(a / T)``.
+
+    The NLL is convex in ``1 / T``; searched in ``TEMPERATURE_RANGE`` (a set the network
+    classifies without error ends at the sharp end). An empty set gives 1.
+    """
+    from scipy.optimize import minimize_scalar
+
+    a = np.atleast_2d(np.asarray(activations, dtype=np.float64))
+    y = np.asarray(labels, dtype=np.int64)
+    if a.shape[0] == 0:
+        return 1.0
+    a = a - a.max(axis=1, keepdims=True)
+    a_true = a[np.arange(y.size), y]
+
+    def nll(beta: float) -> float:
+        z = beta * a
+        return float(np.mean(np.log(np.exp(z).sum(axis=1)) - beta * a_true))
+
+    lo, hi = 1.0 / TEMPERATURE_RANGE[1], 1.0 / TEMPERATURE_RANGE[0]
+    r = minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4 * lo})
+    return float(1.0 / r.x)
+
+
+def decide(activations: np.ndarray, J: np.ndarray | None = None, *, decision: str = "bayes",
+           temperature: float = 1.0) -> Decision:
+    """The class of each input (module docstring); ``J`` None allows only ``argmax``.
+
+    Parameters
+    ----------
+    activations : (m, n) or (n,)
+        The network's activations.
+    J : (n, n) or None
+        Cost matrix, rows class answered, columns true class.
+    decision : ``"bayes"`` or ``"argmax"``
+    temperature : float
+        ``T`` of the belief ``softmax(a / T)`` (``fit_temperature``); argmax does not depend on it.
+    """
+    if decision not in DECISIONS:
+        raise UserError(f"decision must be one of {', '.join(DECISIONS)}, got {decision!r}")
+    if not (math.isfinite(temperature) and temperature > 0):
+        raise UserError(f"temperature must be a positive number, got {temperature!r}")
+    p = softmax(activations, temperature)
+    if J is None:
+        if decision == "bayes":
+            raise UserError("the Bayes decision needs the cost matrix J (a bundle exported without it: retrain, "
+                            "or decide by argmax)")
+        cls = p.argmax(axis=1).astype(np.int64)
+        return Decision(cls, np.full(cls.size, np.nan), p, decision)
+    cost = expected_cost(p, J)
+    cls = (cost.argmin(axis=1) if decision == "bayes" else p.argmax(axis=1)).astype(np.int64)
+    return Decision(cls, cost[np.arange(cls.size), cls], p, decision)
