@@ -29,10 +29,10 @@ def test_bayes_avoids_the_class_unstable_on_the_runner_up():
     arg = decide(a, J, decision="argmax")
     bay = decide(a, J)
     assert arg.cls.tolist() == [0] and bay.cls.tolist() == [2]
-    # expected clipped J by hand: the unstable pair costs the clip's 1e3
+    # geometric-mean clipped J by hand: the unstable pair costs the clip's 1e3
     p = np.array([0.55, 0.40, 0.05])
-    assert arg.expected_J[0] == pytest.approx(0.55 * 1.0 + 0.40 * COST_CLIP[1] + 0.05 * 1.5)
-    assert bay.expected_J[0] == pytest.approx(0.55 * 1.05 + 0.40 * 1.08 + 0.05 * 1.0)
+    assert arg.expected_J[0] == pytest.approx(COST_CLIP[1] ** 0.40 * 1.5**0.05)
+    assert bay.expected_J[0] == pytest.approx(1.05**0.55 * 1.08**0.40)
     assert bay.p[0] == pytest.approx(p)
     assert expected_cost(p, J)[0].argmin() == 2
 
@@ -48,7 +48,7 @@ def test_bayes_equals_argmax_where_classes_are_far_apart():
     assert np.array_equal(decide(a, J).cls, decide(a, J, decision="argmax").cls)
     # batched expected cost is the loop over inputs
     p = softmax(a)
-    assert np.allclose(expected_cost(p, J), np.stack([np.clip(J, *COST_CLIP) @ q for q in p]))
+    assert np.allclose(expected_cost(p, J), np.stack([np.log(np.clip(J, *COST_CLIP)) @ q for q in p]))
 
 
 def test_the_decision_clips_as_the_loss_does():
