@@ -1,0 +1,96 @@
+"""Report folder of the iterated gap workflow: overlays for every run, the ranking, the residual.
+
+``write_flow_report`` writes, next to the single search's report
+(:func:`uavsim.gap.report.write_report` of the final model: ``gap.rrd``,
+``gap.json``, ``model.toml``):
+
+* ``overlay_runN_<file>.png`` per run: measured, base model (before) and final
+  model (after) on top; measured minus before and minus after below;
+* ``ranking.png``: every search's candidates by gap, with ``none`` and the
+  naming line (the gap times ``1 - NAME_SHARE``);
+* ``flow.json`` (:meth:`FlowResult.to_json`) and ``flow.txt``
+  (:func:`uavsim.gap.iterate.format_flow`), the residual's character included.
+
+    flow = analyse(session, log=print)
+    write_flow_report(flow, "reports/tb_00011")
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from uavsim.gap.iterate import NAME_SHARE, FlowResult, format_flow
+from uavsim.gap.report import write_report
+
+__all__ = ["write_flow_report"]
+
+
+def _overlays(flow: FlowResult, folder: Path, plt) -> list[Path]:
+    session, final = flow.session, flow.final
+    before = flow.steps[0].sims_before
+    label = " + ".join(e.name for e in flow.found) or "no effect"
+    out = []
+    for i, run in enumerate(session.runs):
+        fig, (ax, ar) = plt.subplots(2, 1, figsize=(10, 5.2), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+        t, y = run.data.t, run.data.y
+        b, a = before[i], final.sims_after[i]
+        ax.plot(t, y, color="k", lw=1.0, label="measured")
+        ax.plot(b.t, b.y, color="tab:red", lw=0.9, alpha=0.8, label=f"base model ({flow.base_source})")
+        if flow.found:
+            ax.plot(a.t, a.y, color="tab:blue", lw=0.9, alpha=0.8, label=f"+ {label}")
+        ax.set_ylabel("y")
+        ax.set_title(f"run {i}: {run.spec.file} ({run.spec.kind})   answer: {flow.answer}")
+        ax.legend(loc="upper right", fontsize=8)
+        n = min(t.size, b.y.size)
+        ar.plot(t[:n], y[:n] - b.y[:n], color="tab:red", lw=0.8, label="measured - before")
+        if flow.found:
+            n = min(t.size, a.y.size)
+            ar.plot(t[:n], y[:n] - a.y[:n], color="tab:blue", lw=0.8, label="measured - after")
+        ar.set_xlabel("t (s)")
+        ar.set_ylabel("residual")
+        ar.legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        p = folder / f"overlay_run{i}_{Path(run.spec.file).stem}.png"
+        fig.savefig(p, dpi=80)
+        plt.close(fig)
+        out.append(p)
+    return out
+
+
+def _ranking(flow: FlowResult, folder: Path, plt) -> Path:
+    k = len(flow.steps)
+    fig, axes = plt.subplots(1, k, figsize=(5.5 * k, 3.8), squeeze=False)
+    for j, (ax, s) in enumerate(zip(axes[0], flow.steps, strict=True)):
+        names = [r["effect"] for r in s.ranking]
+        gaps = np.array([r["gap"] for r in s.ranking], dtype=float)
+        colors = ["tab:green" if n == s.effect and n != "none" else ("0.4" if n == "none" else "tab:gray") for n in names]
+        ax.barh(range(len(names)), np.where(np.isfinite(gaps), gaps, np.nan), color=colors)
+        ax.set_yticks(range(len(names)), names, fontsize=8)
+        ax.invert_yaxis()
+        ax.axvline((1 - NAME_SHARE) * s.gap_before, color="tab:red", ls="--", lw=0.8, label="naming line")
+        ax.set_xlabel("gap (RMS z)")
+        ax.set_title(f"search {j + 1}: {s.effect}", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    p = folder / "ranking.png"
+    fig.savefig(p, dpi=80)
+    plt.close(fig)
+    return p
+
+
+def write_flow_report(flow: FlowResult, folder: str | Path) -> Path:
+    """Write the report folder (created if missing) and return its path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = write_report(flow.session, flow.final, folder)
+    _overlays(flow, f, plt)
+    _ranking(flow, f, plt)
+    (f / "flow.json").write_text(json.dumps(flow.to_json(), indent=1, default=float) + "\n")
+    (f / "flow.txt").write_text(format_flow(flow) + "\n")
+    return f
