@@ -33,7 +33,7 @@ def _session(runs=((0.5, 1.0, 10),), loop="pitch"):
     out = []
     for i, (period, amp, cycles) in enumerate(runs):
         t, y, u = _relay(period, amp, cycles)
-        out.append(Run(RunSpec(f"r{i}.csv", "np-mrft", beta=-0.73, h=1.0), RunData(t, np.zeros_like(t), y, u)))
+        out.append(Run(RunSpec(f"r{i}.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0), RunData(t, np.zeros_like(t), y, u)))
     return Session(loop, RATE, out, model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0))
 
 
@@ -107,7 +107,7 @@ def test_absorbed_reads_the_move_of_tau_off_the_identification():
 def test_identified_base_is_used_and_said(monkeypatch):
     _script(monkeypatch, [("none", 1.0, 1.0)])
     ident = {"run": "r0.csv", "class": 3, "params": {"tau": 0.05}, "class_params": {"tau": 0.01},
-             "oscillation": {"period": 0.5}}  # fmt: skip
+             "oscillation": {"period": 0.5}, "refused_runs": ["r9.csv: no steady state"]}  # fmt: skip
     model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.05, noise_std=0.0)
     monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
     s = _session()
@@ -116,7 +116,26 @@ def test_identified_base_is_used_and_said(monkeypatch):
     flow = iterate.analyse(s, log=msgs.append)
     assert flow.base_source == "identified" and flow.base is model
     assert any(m.startswith("no [model]: base model identified from r0.csv") for m in msgs)
+    assert "identification refused r9.csv: no steady state" in msgs
     assert flow.answer == "absorbed" and flow.absorbed["moved_s"] == pytest.approx(0.04)
+
+
+def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
+    import uavsim.learning.identify as ident
+
+    def fake(path, model_dir=None, run=None):
+        if run == "r0.csv":
+            raise UserError("no steady state")
+        return {"run": run, "class": 1, "params": {"K": 1.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.02}, "noise_std": 0.1}
+
+    monkeypatch.setattr(ident, "identify_session", fake)
+    s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
+    s.model = None
+    model, ans = iterate.identify_base(s)
+    assert ans["run"] == "r1.csv" and ans["refused_runs"] == ["r0.csv: no steady state"] and model.tau == 0.02
+    monkeypatch.setattr(ident, "identify_session", lambda *a, **k: (_ for _ in ()).throw(UserError("bad")))
+    with pytest.raises(UserError, match="no relay run identifies a base model"):
+        iterate.identify_base(s)
 
 
 def test_dead_run_is_dropped_and_named(monkeypatch):

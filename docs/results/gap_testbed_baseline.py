@@ -84,7 +84,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "identified": {k: j["base_model"][k] for k in ("K", "T_prop", "T1", "tau", "noise_std")},
-                "identification": ({k: flow.identification.get(k) for k in ("class", "class_params", "params")}
+                "identification": ({k: flow.identification.get(k) for k in ("class", "class_params", "params", "oscillation")}
                                    if flow.identification else None),
                 "seconds": time.perf_counter() - t0})  # fmt: skip
     rec.update(score(t, flow.answer, j["found"], flow.gap_before, flow.gap_after))

@@ -158,13 +158,20 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
     relays = sorted((r for r in session.runs if r.spec.kind in ("np-mrft", "mrft")), key=lambda r: r.spec.kind != "np-mrft")
     if not relays:
         raise UserError(f"session {session.path or '(in memory)'}: no [model] and no relay run to identify one from")
-    run = relays[0].spec.file
-    if session.path is not None:
-        ans = identify_session(session.path, model_dir=models, run=run)
-    else:
-        with tempfile.TemporaryDirectory() as tmp:
-            write_session(session, Path(tmp) / "s")
-            ans = identify_session(Path(tmp) / "s", model_dir=models, run=run)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = session.path
+        if path is None:
+            path = write_session(session, Path(tmp) / "s")
+        refusals = []
+        for r in relays:  # the first relay run that identification accepts (one may have lost its cycle)
+            try:
+                ans = identify_session(path, model_dir=models, run=r.spec.file)
+                break
+            except UserError as exc:
+                refusals.append(f"{r.spec.file}: {exc}")
+        else:
+            raise UserError(f"session {path}: no relay run identifies a base model ({'; '.join(refusals)})")
+    ans["refused_runs"] = refusals
     p = ans["params"]
     model = ModelSpec(K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]),
                       T2=p.get("T2"), noise_std=float(ans.get("noise_std", 0.0)))  # fmt: skip
@@ -233,6 +240,8 @@ def analyse(
     else:
         model, ident = identify_base(session, models)
         source = "identified"
+        for why in ident["refused_runs"]:
+            log(f"identification refused {why}")
         log(f"no [model]: base model identified from {ident['run']} (class {ident['class']}): "
             f"K {model.K:.4g}, T_prop {model.T_prop:.4g} s, T1 {model.T1:.4g} s, tau {model.tau * 1e3:.1f} ms, "
             f"noise std {model.noise_std:.3g}")  # fmt: skip
