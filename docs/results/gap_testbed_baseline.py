@@ -29,7 +29,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
-from uavsim.gap.iterate import analyse
+from uavsim.gap.iterate import absorbed_by, analyse, decide
 
 #: linear effects an identified linear model can take in (answer ``absorbed`` or ``none`` counts for them)
 ABSORBABLE = ("delay", "lag", "gain", "lowpass")
@@ -91,6 +91,20 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
     return rec
 
 
+def redecide(r: dict) -> dict:
+    """A logged record with its answer decided again by ``uavsim.gap.iterate.decide`` (thresholds of today)."""
+    if r["answer"] == "error":
+        return r
+    ident = r.get("identification")
+    absorbed = absorbed_by(ident) if ident else None
+    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed)
+    t = {"kind": r["kind"], "effects": [{"name": n, "params": p} for n, p in
+                                        zip(r["truth"].split("+"), r["truth_params"], strict=False)]}  # fmt: skip
+    if r["kind"] == "none":
+        t["effects"] = []
+    return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
+
+
 KINDS = ("none", "single", "pair", "outside")
 ANSWERS = ("named", "absorbed", "none", "unexplained", "error")
 
@@ -145,8 +159,9 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=0, help="MuJoCo threads (default: all CPUs the process may use)")
     ap.add_argument("--summarize", action="store_true", help="print the tables of a --log file given as SET")
     args = ap.parse_args()
-    if args.summarize:
-        print(summary([json.loads(line) for line in Path(args.set).read_text().splitlines() if line.strip()]))
+    if args.summarize:  # the answers re-decided with today's thresholds (they are set on these logs)
+        recs = [json.loads(line) for line in Path(args.set).read_text().splitlines() if line.strip()]
+        print(summary([redecide(r) for r in recs]))
         return 0
     folders = sorted(p for p in Path(args.set).iterdir() if p.is_dir() and (p / "session.toml").exists())
     records = []

@@ -40,7 +40,7 @@ from uavsim.gap.features import run_features
 from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import CANDIDATES, GapResult, format_table, run_gap
 
-__all__ = ["FlowResult", "analyse", "identify_base", "live_runs", "format_flow", "NONE_GAP", "NAME_SHARE"]
+__all__ = ["FlowResult", "analyse", "decide", "absorbed_by", "identify_base", "live_runs", "format_flow", "NONE_GAP", "NAME_SHARE"]
 
 #: most effects added one after the other
 MAX_EFFECTS = 2
@@ -197,6 +197,15 @@ def absorbed_by(ident: dict | None) -> dict | None:
             "effects": ["delay", "lag", "lowpass"]}  # fmt: skip
 
 
+def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None) -> str:
+    """The answer's kind: ``named`` when an effect was added, else by the base model's gap and the identification."""
+    if named:
+        return "named"
+    if gap_before <= NONE_GAP[family(loop)]:
+        return "absorbed" if absorbed else "none"
+    return "unexplained"
+
+
 def analyse(
     session: Session,
     model: ModelSpec | None = None,
@@ -269,12 +278,7 @@ def analyse(
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
     absorbed = absorbed_by(ident) if source == "identified" else None
-    if found:
-        answer = "named"
-    elif gap_before <= NONE_GAP[family(session.loop)]:
-        answer = "absorbed" if absorbed else "none"
-    else:
-        answer = "unexplained"
+    answer = decide(bool(found), gap_before, session.loop, absorbed)
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live)  # fmt: skip
