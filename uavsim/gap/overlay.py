@@ -52,12 +52,15 @@ def _overlays(flow: FlowResult, folder: Path, plt) -> list[Path]:
         ar.set_xlabel("t (s)")
         ar.set_ylabel("residual")
         ar.legend(loc="upper right", fontsize=8)
-        fig.tight_layout()
-        p = folder / f"overlay_run{i}_{Path(run.spec.file).stem}.png"
-        fig.savefig(p, dpi=80)
-        plt.close(fig)
-        out.append(p)
+        out.append(_save(fig, folder / f"overlay_run{i}_{Path(run.spec.file).stem}.png", plt))
     return out
+
+
+def _save(fig, path: Path, plt) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
 
 
 def _ranking(flow: FlowResult, folder: Path, plt) -> Path:
@@ -74,11 +77,7 @@ def _ranking(flow: FlowResult, folder: Path, plt) -> Path:
         ax.set_xlabel("gap (RMS z)")
         ax.set_title(f"search {j + 1}: {s.effect}", fontsize=9)
         ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    p = folder / "ranking.png"
-    fig.savefig(p, dpi=80)
-    plt.close(fig)
-    return p
+    return _save(fig, folder / "ranking.png", plt)
 
 
 def write_flow_report(flow: FlowResult, folder: str | Path) -> Path:
