@@ -186,3 +186,23 @@ def test_flow_report_has_an_overlay_per_run_and_the_ranking(monkeypatch, tmp_pat
 def _mk(folder):
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+def test_run_the_base_model_cannot_fly_is_set_aside(monkeypatch):
+    calls = _script(monkeypatch, [("none", 1.0, 1.0)])
+    fake = iterate.run_gap
+    seen = []
+
+    def first_refuses(session, **kw):
+        seen.append(len(session.runs))
+        if len(seen) == 1:
+            raise UserError("run 1 (r1.csv): the model's step response diverges; check the model")
+        return fake(session, **kw)
+
+    monkeypatch.setattr(iterate, "run_gap", first_refuses)
+    flow = iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
+    assert seen == [2, 1] and len(calls) == 1
+    assert flow.dropped == ["r1.csv (the base model cannot fly it)"] and len(flow.session.runs) == 1
+    monkeypatch.setattr(iterate, "run_gap", lambda s, **kw: (_ for _ in ()).throw(UserError("something else")))
+    with pytest.raises(UserError, match="something else"):
+        iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))

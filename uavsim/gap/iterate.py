@@ -29,6 +29,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -51,6 +52,7 @@ NAME_SHARE = 0.6
 #: rather than ``unexplained``; set on clean testbed sessions of the development seeds
 #: (docs/results/gap-workflow.md): above the largest clean gap seen there
 NONE_GAP = {"altitude": 16.0, "attitude": 6.0}
+_UNFLOWN = re.compile(r"run (\d+) \([^)]*\): the model('s step response diverges| does not even reproduce)")
 #: identified tau beyond the class's tau, as a share of the cycle's period, above which a
 #: linear effect is reported as absorbed by the identified model
 ABSORB_TAU_SHARE = 0.04
@@ -264,7 +266,20 @@ def analyse(
         cands = tuple(c for c in candidates if c not in {e.name for e in cur.effects})
         if not cands:
             break
-        res = run_gap(cur, model=model, seed=seed + 7919 * len(steps), nthread=nthread, candidates=cands, log=log)
+        try:
+            res = run_gap(cur, model=model, seed=seed + 7919 * len(steps), nthread=nthread, candidates=cands, log=log)
+        except UserError as exc:
+            # a run the base model cannot fly at all (diverges, no cycle) is set aside, said, and the rest used
+            m = _UNFLOWN.match(str(exc))
+            if not m or steps or len(cur.runs) < 2:
+                raise
+            i = int(m.group(1))
+            log(f"run {cur.runs[i].spec.file} dropped: {exc}")
+            dropped.append(f"{cur.runs[i].spec.file} (the base model cannot fly it)")
+            cur = dataclasses.replace(cur, runs=[r for k, r in enumerate(cur.runs) if k != i])
+            live = cur
+            live_runs(cur)  # a relay run must be left
+            continue
         steps.append(res)
         log(f"search {len(steps)}: {res.effect} {res.params} gap {res.gap_before:.3f} -> {res.gap_after:.3f}")
         if res.effect == "none":
