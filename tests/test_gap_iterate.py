@@ -206,3 +206,19 @@ def test_run_the_base_model_cannot_fly_is_set_aside(monkeypatch):
     monkeypatch.setattr(iterate, "run_gap", lambda s, **kw: (_ for _ in ()).throw(UserError("something else")))
     with pytest.raises(UserError, match="something else"):
         iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
+
+
+def test_search_stops_when_the_found_effect_makes_a_run_unflyable(monkeypatch):
+    _script(monkeypatch, [("lag", 10.0, 2.0)])
+    fake = iterate.run_gap
+    seen = []
+
+    def second_refuses(session, **kw):
+        seen.append(1)
+        if len(seen) == 2:
+            raise UserError("run 0 (r0.csv): the model's step response diverges; check the model")
+        return fake(session, **kw)
+
+    monkeypatch.setattr(iterate, "run_gap", second_refuses)
+    flow = iterate.analyse(_session())
+    assert flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(flow.steps) == 1

@@ -273,7 +273,10 @@ def analyse(
         except UserError as exc:
             # a run the base model cannot fly at all (diverges, no cycle) is set aside, said, and the rest used
             m = _UNFLOWN.match(str(exc))
-            if not m or steps or len(cur.runs) < 2:
+            if m and steps:  # the model with the effects found so far cannot fly a run: stop there
+                log(f"search {len(steps) + 1} not run: {exc}")
+                break
+            if not m or len(cur.runs) < 2:
                 raise
             i = int(m.group(1))
             log(f"run {cur.runs[i].spec.file} dropped: {exc}")
