@@ -29,7 +29,8 @@ __all__ = ["residual_character", "run_residual"]
 
 #: harmonics of the mean cycle examined (1 = the fundamental)
 HARMONICS = (1, 2, 3, 4, 5)
-#: a run is listed as carrying the residual when its share of the total is at least this
+#: a run is listed as carrying the residual when its share of the total (over the relay runs,
+#: or over the steps) is at least this
 RUN_SHARE = 0.15
 
 
@@ -95,15 +96,20 @@ def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
     Returns
     -------
     dict
-        ``runs`` (list of :func:`run_residual` dicts), ``carried_by`` (indices of the runs
-        holding at least :data:`RUN_SHARE` of the residual), ``harmonics`` (the two largest,
+        ``runs`` (list of :func:`run_residual` dicts), ``carried_by`` (indices of the relay runs
+        holding at least :data:`RUN_SHARE` of the relay runs' residual, then the same for steps), ``harmonics`` (the two largest,
         over those runs), ``summary`` (str).
     """
     runs = [run_residual(r.spec, r.data.t, r.data.y, r.data.u, s) for r, s in zip(session.runs, sims, strict=True)]
     size = np.array([r["size"] if math.isfinite(r["size"]) else (1e3 if r["size"] == math.inf else 0.0)
                      for r in runs])  # fmt: skip
-    total = float(size.sum())
-    carried = [i for i, s in enumerate(size) if total > 0 and s / total >= RUN_SHARE]
+    # relay waveforms and step traces are normalized differently: each kind is shared out on its own
+    step = np.array([r["kind"] == "step" for r in runs])
+    carried = []
+    for mask in (~step, step):
+        total = float(size[mask].sum())
+        carried += [i for i in np.flatnonzero(mask) if total > 0 and size[i] / total >= RUN_SHARE]
+    carried = [int(i) for i in carried]
     harm: dict[int, float] = {}
     for i in carried:
         for h, v in runs[i].get("harmonics", {}).items():
