@@ -33,8 +33,15 @@ def _session(runs=((0.5, 1.0, 10),), loop="pitch"):
     out = []
     for i, (period, amp, cycles) in enumerate(runs):
         t, y, u = _relay(period, amp, cycles)
-        out.append(Run(RunSpec(f"r{i}.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0), RunData(t, np.zeros_like(t), y, u)))
-    return Session(loop, RATE, out, model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0))
+        out.append(
+            Run(
+                RunSpec(f"r{i}.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0),
+                RunData(t, np.zeros_like(t), y, u),
+            )
+        )
+    return Session(
+        loop, RATE, out, model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+    )
 
 
 def _sim(t, y, u):
@@ -96,9 +103,15 @@ def test_altitude_has_its_own_threshold(monkeypatch):
 
 
 def test_absorbed_reads_the_move_of_tau_off_the_identification():
-    ident = {"params": {"tau": 0.030}, "class_params": {"tau": 0.008}, "oscillation": {"period": 0.4}}
+    ident = {
+        "params": {"tau": 0.030},
+        "class_params": {"tau": 0.008},
+        "oscillation": {"period": 0.4},
+    }
     a = iterate.absorbed_by(ident)
-    assert a["parameter"] == "tau" and a["moved_s"] == pytest.approx(0.022) and "lag" in a["effects"]
+    assert (
+        a["parameter"] == "tau" and a["moved_s"] == pytest.approx(0.022) and "lag" in a["effects"]
+    )
     # a few ms beyond the class at this period is what a clean vehicle shows: nothing absorbed
     assert iterate.absorbed_by({**ident, "params": {"tau": 0.012}}) is None
     assert iterate.absorbed_by(None) is None
@@ -126,14 +139,25 @@ def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
     def fake(path, model_dir=None, run=None):
         if run == "r0.csv":
             raise UserError("no steady state")
-        return {"run": run, "class": 1, "params": {"K": 1.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.02}, "noise_std": 0.1}
+        return {
+            "run": run,
+            "class": 1,
+            "params": {"K": 1.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.02},
+            "noise_std": 0.1,
+        }
 
     monkeypatch.setattr(ident, "identify_session", fake)
     s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
     s.model = None
     model, ans = iterate.identify_base(s)
-    assert ans["run"] == "r1.csv" and ans["refused_runs"] == ["r0.csv: no steady state"] and model.tau == 0.02
-    monkeypatch.setattr(ident, "identify_session", lambda *a, **k: (_ for _ in ()).throw(UserError("bad")))
+    assert (
+        ans["run"] == "r1.csv"
+        and ans["refused_runs"] == ["r0.csv: no steady state"]
+        and model.tau == 0.02
+    )
+    monkeypatch.setattr(
+        ident, "identify_session", lambda *a, **k: (_ for _ in ()).throw(UserError("bad"))
+    )
     with pytest.raises(UserError, match="no relay run identifies a base model"):
         iterate.identify_base(s)
 
@@ -173,12 +197,20 @@ def test_flow_report_has_an_overlay_per_run_and_the_ranking(monkeypatch, tmp_pat
     _script(monkeypatch, [("bias", 10.0, 2.0), ("none", 2.0, 2.0)])
     s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
     flow = iterate.analyse(s)
-    monkeypatch.setattr("uavsim.gap.overlay.write_report", lambda session, result, folder: _mk(folder))
+    monkeypatch.setattr(
+        "uavsim.gap.overlay.write_report", lambda session, result, folder: _mk(folder)
+    )
     from uavsim.gap.overlay import write_flow_report
 
     out = write_flow_report(flow, tmp_path / "rep")
     names = {p.name for p in out.iterdir()}
-    assert {"overlay_run0_r0.png", "overlay_run1_r1.png", "ranking.png", "flow.json", "flow.txt"} <= names
+    assert {
+        "overlay_run0_r0.png",
+        "overlay_run1_r1.png",
+        "ranking.png",
+        "flow.json",
+        "flow.txt",
+    } <= names
     assert json.loads((out / "flow.json").read_text())["answer"] == "named"
     assert "residual:" in (out / "flow.txt").read_text()
 
@@ -203,7 +235,9 @@ def test_run_the_base_model_cannot_fly_is_set_aside(monkeypatch):
     flow = iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
     assert seen == [2, 1] and len(calls) == 1
     assert flow.dropped == ["r1.csv (the base model cannot fly it)"] and len(flow.session.runs) == 1
-    monkeypatch.setattr(iterate, "run_gap", lambda s, **kw: (_ for _ in ()).throw(UserError("something else")))
+    monkeypatch.setattr(
+        iterate, "run_gap", lambda s, **kw: (_ for _ in ()).throw(UserError("something else"))
+    )
     with pytest.raises(UserError, match="something else"):
         iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
 
@@ -221,4 +255,6 @@ def test_search_stops_when_the_found_effect_makes_a_run_unflyable(monkeypatch):
 
     monkeypatch.setattr(iterate, "run_gap", second_refuses)
     flow = iterate.analyse(_session())
-    assert flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(flow.steps) == 1
+    assert (
+        flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(flow.steps) == 1
+    )

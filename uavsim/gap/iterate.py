@@ -41,7 +41,17 @@ from uavsim.gap.features import run_features
 from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import CANDIDATES, GapResult, format_table, run_gap
 
-__all__ = ["FlowResult", "analyse", "decide", "absorbed_by", "identify_base", "live_runs", "format_flow", "NONE_GAP", "NAME_SHARE"]
+__all__ = [
+    "FlowResult",
+    "analyse",
+    "decide",
+    "absorbed_by",
+    "identify_base",
+    "live_runs",
+    "format_flow",
+    "NONE_GAP",
+    "NAME_SHARE",
+]
 
 #: most effects added one after the other
 MAX_EFFECTS = 2
@@ -53,7 +63,9 @@ NAME_SHARE = 0.6
 #: 0-23 (docs/results/gap-workflow.md): 10% above the largest clean gap seen there
 #: (attitude 6.39, altitude 13.55; identified base models)
 NONE_GAP = {"altitude": 15.0, "attitude": 7.0}
-_UNFLOWN = re.compile(r"run (\d+) \([^)]*\): the model('s step response diverges| does not even reproduce)")
+_UNFLOWN = re.compile(
+    r"run (\d+) \([^)]*\): the model('s step response diverges| does not even reproduce)"
+)
 #: identified tau beyond the class's tau, as a share of the cycle's period, above which a
 #: linear effect is reported as absorbed by the identified model; set above the largest
 #: share on the clean sessions of development seeds 0-23 (0.025)
@@ -114,23 +126,38 @@ class FlowResult:
     def to_json(self) -> dict:
         """The final search's JSON (effect, params, gap_before, gap_after, ranking, ...) plus the flow's answer."""
         out = self.final.to_json()
-        out.update({
-            "answer": self.answer,
-            "effect": self.found[-1].name if self.found else self.answer if self.answer != "named" else "none",
-            "params": dict(self.found[-1].params) if self.found else {},
-            "found": [{"name": e.name, **e.params} for e in self.found],
-            "gap_before": self.gap_before,
-            "gap_after": self.gap_after,
-            "base_source": self.base_source,
-            "base_model": dataclasses.asdict(self.base),
-            "identification": self.identification,
-            "dropped_runs": self.dropped,
-            "absorbed": self.absorbed,
-            "residual": self.residual,
-            "steps": [{"effect": s.effect, "params": s.params, "gap_before": s.gap_before, "gap_after": s.gap_after,
-                       "ranking": s.ranking, "seconds": s.seconds} for s in self.steps],  # fmt: skip
-            "seconds": self.seconds,
-        })
+        out.update(
+            {
+                "answer": self.answer,
+                "effect": self.found[-1].name
+                if self.found
+                else self.answer
+                if self.answer != "named"
+                else "none",
+                "params": dict(self.found[-1].params) if self.found else {},
+                "found": [{"name": e.name, **e.params} for e in self.found],
+                "gap_before": self.gap_before,
+                "gap_after": self.gap_after,
+                "base_source": self.base_source,
+                "base_model": dataclasses.asdict(self.base),
+                "identification": self.identification,
+                "dropped_runs": self.dropped,
+                "absorbed": self.absorbed,
+                "residual": self.residual,
+                "steps": [
+                    {
+                        "effect": s.effect,
+                        "params": s.params,
+                        "gap_before": s.gap_before,
+                        "gap_after": s.gap_after,
+                        "ranking": s.ranking,
+                        "seconds": s.seconds,
+                    }
+                    for s in self.steps
+                ],  # fmt: skip
+                "seconds": self.seconds,
+            }
+        )
         return out
 
 
@@ -142,7 +169,9 @@ def live_runs(session: Session) -> tuple[Session, list[str]]:
     """The session without the runs whose measurement holds no analysable cycle or step, and their names."""
     keep, dropped = [], []
     for r in session.runs:
-        (keep if run_features(r.spec, r.data.t, r.data.y, r.data.u) is not None else dropped).append(r)
+        (
+            keep if run_features(r.spec, r.data.t, r.data.y, r.data.u) is not None else dropped
+        ).append(r)
     if not any(r.spec.kind != "step" for r in keep):
         raise UserError(f"session {session.path or '(in memory)'}: no relay run holds 3 full cycles "
                         "after the first two; the gap cannot be measured")  # fmt: skip
@@ -159,22 +188,31 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
     """
     from uavsim.learning.identify import identify_session
 
-    relays = sorted((r for r in session.runs if r.spec.kind in ("np-mrft", "mrft")), key=lambda r: r.spec.kind != "np-mrft")
+    relays = sorted(
+        (r for r in session.runs if r.spec.kind in ("np-mrft", "mrft")),
+        key=lambda r: r.spec.kind != "np-mrft",
+    )
     if not relays:
-        raise UserError(f"session {session.path or '(in memory)'}: no [model] and no relay run to identify one from")
+        raise UserError(
+            f"session {session.path or '(in memory)'}: no [model] and no relay run to identify one from"
+        )
     with tempfile.TemporaryDirectory() as tmp:
         path = session.path
         if path is None:
             path = write_session(session, Path(tmp) / "s")
         refusals = []
-        for r in relays:  # the first relay run that identification accepts (one may have lost its cycle)
+        for r in (
+            relays
+        ):  # the first relay run that identification accepts (one may have lost its cycle)
             try:
                 ans = identify_session(path, model_dir=models, run=r.spec.file)
                 break
             except UserError as exc:
                 refusals.append(f"{r.spec.file}: {exc}")
         else:
-            raise UserError(f"session {path}: no relay run identifies a base model ({'; '.join(refusals)})")
+            raise UserError(
+                f"session {path}: no relay run identifies a base model ({'; '.join(refusals)})"
+            )
     ans["refused_runs"] = refusals
     p = ans["params"]
     model = ModelSpec(K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]),
@@ -260,7 +298,9 @@ def analyse(
             f"noise std {model.noise_std:.3g}")  # fmt: skip
     live, dropped = live_runs(session)
     for f in dropped:
-        log(f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)")
+        log(
+            f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)"
+        )
     steps: list[GapResult] = []
     found: list[EffectSpec] = []
     cur = live
@@ -269,7 +309,14 @@ def analyse(
         if not cands:
             break
         try:
-            res = run_gap(cur, model=model, seed=seed + 7919 * len(steps), nthread=nthread, candidates=cands, log=log)
+            res = run_gap(
+                cur,
+                model=model,
+                seed=seed + 7919 * len(steps),
+                nthread=nthread,
+                candidates=cands,
+                log=log,
+            )
         except UserError as exc:
             # a run the base model cannot fly at all (diverges, no cycle) is set aside, said, and the rest used
             m = _UNFLOWN.match(str(exc))
@@ -286,7 +333,9 @@ def analyse(
             live_runs(cur)  # a relay run must be left
             continue
         steps.append(res)
-        log(f"search {len(steps)}: {res.effect} {res.params} gap {res.gap_before:.3f} -> {res.gap_after:.3f}")
+        log(
+            f"search {len(steps)}: {res.effect} {res.params} gap {res.gap_before:.3f} -> {res.gap_after:.3f}"
+        )
         if res.effect == "none":
             break
         found.append(EffectSpec(res.effect, dict(res.params)))
@@ -312,16 +361,28 @@ def format_flow(flow: FlowResult) -> str:
     if flow.dropped:
         lines.append("dropped runs (no analysable cycle): " + ", ".join(flow.dropped))
     if flow.answer == "named":
-        lines.append("answer: named " + " + ".join(
-            f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items()) + ")" for e in flow.found))
+        lines.append(
+            "answer: named "
+            + " + ".join(
+                f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items()) + ")"
+                for e in flow.found
+            )
+        )
     elif flow.answer == "absorbed":
         a = flow.absorbed
-        lines.append(f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the identified {a['parameter']} "
-                     f"to {a['identified'] * 1e3:.1f} ms (class {a['class'] * 1e3:.1f} ms, +{a['moved_s'] * 1e3:.1f} ms)")
+        lines.append(
+            f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the identified {a['parameter']} "
+            f"to {a['identified'] * 1e3:.1f} ms (class {a['class'] * 1e3:.1f} ms, +{a['moved_s'] * 1e3:.1f} ms)"
+        )
     else:
         lines.append(f"answer: {flow.answer}")
-    lines.append(f"gap before: {flow.gap_before:.3f}   gap after: {flow.gap_after:.3f}   ({flow.seconds:.1f} s)")
-    if flow.answer in ("unexplained", "named") or flow.gap_after > NONE_GAP[family(flow.session.loop)]:
+    lines.append(
+        f"gap before: {flow.gap_before:.3f}   gap after: {flow.gap_after:.3f}   ({flow.seconds:.1f} s)"
+    )
+    if (
+        flow.answer in ("unexplained", "named")
+        or flow.gap_after > NONE_GAP[family(flow.session.loop)]
+    ):
         lines.append("residual: " + flow.residual["summary"])
     for i, s in enumerate(flow.steps, 1):
         lines += ["", f"search {i}:", format_table(s)]

@@ -5,7 +5,8 @@
 ``gap.json``, ``model.toml``):
 
 * ``overlay_runN_<file>.png`` per run: measured, base model (before) and final
-  model (after) on top; measured minus before and minus after below;
+  model (after) in time on top; below, for relay runs their mean cycles
+  (phase-aligned), for steps measured minus before and minus after;
 * ``ranking.png``: every search's candidates by gap, with ``none`` and the
   naming line (the gap times ``1 - NAME_SHARE``);
 * ``flow.json`` (:meth:`FlowResult.to_json`) and ``flow.txt``
@@ -18,10 +19,12 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
+from uavsim.gap.features import run_features
 from uavsim.gap.iterate import NAME_SHARE, FlowResult, format_flow
 from uavsim.gap.report import write_report
 
@@ -34,26 +37,55 @@ def _overlays(flow: FlowResult, folder: Path, plt) -> list[Path]:
     label = " + ".join(e.name for e in flow.found) or "no effect"
     out = []
     for i, run in enumerate(session.runs):
-        fig, (ax, ar) = plt.subplots(2, 1, figsize=(10, 5.2), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+        fig, (ax, ar) = plt.subplots(2, 1, figsize=(10, 6.0), gridspec_kw={"height_ratios": [3, 2]})
         t, y = run.data.t, run.data.y
         b, a = before[i], final.sims_after[i]
         ax.plot(t, y, color="k", lw=1.0, label="measured")
-        ax.plot(b.t, b.y, color="tab:red", lw=0.9, alpha=0.8, label=f"base model ({flow.base_source})")
+        ax.plot(
+            b.t, b.y, color="tab:red", lw=0.9, alpha=0.8, label=f"base model ({flow.base_source})"
+        )
         if flow.found:
             ax.plot(a.t, a.y, color="tab:blue", lw=0.9, alpha=0.8, label=f"+ {label}")
         ax.set_ylabel("y")
         ax.set_title(f"run {i}: {run.spec.file} ({run.spec.kind})   answer: {flow.answer}")
         ax.legend(loc="upper right", fontsize=8)
-        n = min(t.size, b.y.size)
-        ar.plot(t[:n], y[:n] - b.y[:n], color="tab:red", lw=0.8, label="measured - before")
-        if flow.found:
-            n = min(t.size, a.y.size)
-            ar.plot(t[:n], y[:n] - a.y[:n], color="tab:blue", lw=0.8, label="measured - after")
-        ar.set_xlabel("t (s)")
-        ar.set_ylabel("residual")
-        ar.legend(loc="upper right", fontsize=8)
+        _lower(ar, run, b, a if flow.found else None)
         out.append(_save(fig, folder / f"overlay_run{i}_{Path(run.spec.file).stem}.png", plt))
     return out
+
+
+def _lower(ar, run, b, a) -> None:
+    """Relay runs: the mean cycles (phase-aligned on the relay's rising switch, so a drift of the
+    cycles' timing does not swamp the shape); steps: measured minus simulated in time."""
+    t, y = run.data.t, run.data.y
+    fm = run_features(run.spec, t, y, run.data.u)
+    sims = [
+        (s, c, lab)
+        for s, c, lab in ((b, "tab:red", "before"), (a, "tab:blue", "after"))
+        if s is not None
+    ]
+    if fm is not None and "_wave" in fm:
+        ph = np.arange(fm["_wave"].size) / fm["_wave"].size
+        ar.plot(ph, fm["_wave"], color="k", lw=1.0, label="measured")
+        for s, c, lab in sims:
+            fs = None if s.diverged else run_features(run.spec, s.t, s.y, s.u)
+            if fs is not None:
+                ar.plot(
+                    ph,
+                    fs["_wave"],
+                    color=c,
+                    lw=0.9,
+                    label=f"{lab} (amplitude x{math.exp(fs['amplitude'] - fm['amplitude']):.2f})",
+                )
+        ar.set_xlabel("phase of the mean cycle (0 = relay's rising switch)")
+        ar.set_ylabel("y / amplitude")
+    else:
+        for s, c, lab in sims:
+            n = min(t.size, s.y.size)
+            ar.plot(t[:n], y[:n] - s.y[:n], color=c, lw=0.8, label=f"measured - {lab}")
+        ar.set_xlabel("t (s)")
+        ar.set_ylabel("residual")
+    ar.legend(loc="upper right", fontsize=8)
 
 
 def _save(fig, path: Path, plt) -> Path:
@@ -69,11 +101,16 @@ def _ranking(flow: FlowResult, folder: Path, plt) -> Path:
     for j, (ax, s) in enumerate(zip(axes[0], flow.steps, strict=True)):
         names = [r["effect"] for r in s.ranking]
         gaps = np.array([r["gap"] for r in s.ranking], dtype=float)
-        colors = ["tab:green" if n == s.effect and n != "none" else ("0.4" if n == "none" else "tab:gray") for n in names]
+        colors = [
+            "tab:green" if n == s.effect and n != "none" else ("0.4" if n == "none" else "tab:gray")
+            for n in names
+        ]
         ax.barh(range(len(names)), np.where(np.isfinite(gaps), gaps, np.nan), color=colors)
         ax.set_yticks(range(len(names)), names, fontsize=8)
         ax.invert_yaxis()
-        ax.axvline((1 - NAME_SHARE) * s.gap_before, color="tab:red", ls="--", lw=0.8, label="naming line")
+        ax.axvline(
+            (1 - NAME_SHARE) * s.gap_before, color="tab:red", ls="--", lw=0.8, label="naming line"
+        )
         ax.set_xlabel("gap (RMS z)")
         ax.set_title(f"search {j + 1}: {s.effect}", fontsize=9)
         ax.legend(fontsize=7, loc="lower right")

@@ -65,10 +65,15 @@ def run_residual(spec, t: np.ndarray, y_meas: np.ndarray, u_meas: np.ndarray, si
         out.update(size=math.nan, where="the measured run holds no analysable cycle")
         return out
     if fs is None:
-        out.update(size=math.inf, where="the model does not reproduce this run (no cycle or diverged)")
+        out.update(
+            size=math.inf, where="the model does not reproduce this run (no cycle or diverged)"
+        )
         return out
     if "_wave" not in fm:  # step: the smoothed responses, normalized by the step
-        d = fm["_trace"][: min(fm["_trace"].size, fs["_trace"].size)] - fs["_trace"][: fm["_trace"].size]
+        d = (
+            fm["_trace"][: min(fm["_trace"].size, fs["_trace"].size)]
+            - fs["_trace"][: fm["_trace"].size]
+        )
         k = int(np.argmax(np.abs(d))) if d.size else 0
         out.update(size=float(np.sqrt(np.mean(d * d))) if d.size else math.nan,
                    where=f"in the step response, {k / max(d.size, 1):.0%} of the way through")  # fmt: skip
@@ -100,7 +105,10 @@ def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
         holding at least :data:`RUN_SHARE` of the relay runs' residual, then the same for steps), ``harmonics`` (the two largest,
         over those runs), ``summary`` (str).
     """
-    runs = [run_residual(r.spec, r.data.t, r.data.y, r.data.u, s) for r, s in zip(session.runs, sims, strict=True)]
+    runs = [
+        run_residual(r.spec, r.data.t, r.data.y, r.data.u, s)
+        for r, s in zip(session.runs, sims, strict=True)
+    ]
     size = np.array([r["size"] if math.isfinite(r["size"]) else (1e3 if r["size"] == math.inf else 0.0)
                      for r in runs])  # fmt: skip
     # relay waveforms and step traces are normalized differently: each kind is shared out on its own
