@@ -258,3 +258,27 @@ def test_search_stops_when_the_found_effect_makes_a_run_unflyable(monkeypatch):
     assert (
         flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(flow.steps) == 1
     )
+
+
+def test_cli_identifies_when_the_session_has_no_model(monkeypatch, tmp_path, capsys):
+    import argparse
+
+    from uavsim.cli.gap_cmd import register
+    from uavsim.formats.session import write_session
+
+    _script(monkeypatch, [("none", 1.0, 1.0)])
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+    ident = {"run": "r0.csv", "class": 2, "params": {"tau": 0.01}, "class_params": {"tau": 0.01},
+             "oscillation": {"period": 0.5}, "refused_runs": []}  # fmt: skip
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
+    s = _session()
+    s.model = None
+    write_session(s, tmp_path / "s")
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["gap", str(tmp_path / "s"), "--json"])
+    assert args.func(args) == 0
+    out = capsys.readouterr()
+    assert "no [model]: base model identified from r0.csv" in out.err
+    j = json.loads(out.out)
+    assert (j["answer"], j["base_source"], j["effect"]) == ("none", "identified", "none")

@@ -129,11 +129,7 @@ class FlowResult:
         out.update(
             {
                 "answer": self.answer,
-                "effect": self.found[-1].name
-                if self.found
-                else self.answer
-                if self.answer != "named"
-                else "none",
+                "effect": self.found[-1].name if self.found else "none",  # vocabulary name; the kind is in "answer"
                 "params": dict(self.found[-1].params) if self.found else {},
                 "found": [{"name": e.name, **e.params} for e in self.found],
                 "gap_before": self.gap_before,
