@@ -23,7 +23,7 @@ import numpy as np
 
 from uavsim.cli._common import eprint, print_json
 from uavsim.gap.hidden import HIDDEN_EFFECTS, hidden_session
-from uavsim.gap.workflow import run_gap
+from uavsim.gap.iterate import analyse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,14 +33,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the first session (session i uses seed + i)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--log", metavar="FILE", help="append one JSON line per session to FILE")
+    p.add_argument("--identified", action="store_true", help="drop each session's [model]: the workflow identifies "
+                   "the base model from the relay run, as `uavsim gap` does for a user")
+    p.add_argument("--models", metavar="DIR", help="networks for --identified (default: uavsim identify's)")
     p.set_defaults(func=main)
 
 
-def one(seed: int) -> dict:
-    """Draw, fly and analyse one hidden-effect session; return its record."""
+def one(seed: int, identified: bool = False, models: str | None = None) -> dict:
+    """Draw, fly and analyse one hidden-effect session (``uavsim gap``'s path, one effect); return its record."""
     session, truth = hidden_session(seed)
+    if identified:
+        session.model = None
     t0 = time.perf_counter()
-    r = run_gap(session, seed=seed)
+    flow = analyse(session, models=models, seed=seed, max_effects=1)
+    r = flow.final
     sec = time.perf_counter() - t0
     err = None
     if r.effect == truth.effect and truth.params:
@@ -49,7 +55,8 @@ def one(seed: int) -> dict:
     return {
         "seed": seed, "loop": truth.loop, "truth": truth.effect, "truth_params": truth.params,
         "answer": r.effect, "params": r.params, "param_rel_err": err,
-        "gap_before": r.gap_before, "gap_after": r.gap_after, "seconds": sec,
+        "gap_before": r.gap_before, "gap_after": r.gap_after, "seconds": sec, "kind": flow.answer,
+        "base_source": flow.base_source,
     }  # fmt: skip
 
 
@@ -105,7 +112,7 @@ def format_summary(s: dict) -> str:
 def main(args: argparse.Namespace) -> int:
     records = []
     for i in range(args.sessions):
-        rec = one(args.seed + i)
+        rec = one(args.seed + i, args.identified, args.models)
         records.append(rec)
         eprint(f"[{i + 1}/{args.sessions}] seed {rec['seed']} {rec['loop']}: truth {rec['truth']} "
                f"answer {rec['answer']} gap {rec['gap_before']:.2f}->{rec['gap_after']:.2f} {rec['seconds']:.0f}s")  # fmt: skip

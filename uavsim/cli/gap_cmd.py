@@ -1,12 +1,16 @@
 """``uavsim gap SESSION``: which physical effect does the model lack?
 
 Simulates every run of the session with the session's ``[model]`` (or
-``--model FILE``) on the MuJoCo loop, compares with the measured runs on
+``--model FILE``; with neither, the model ``uavsim identify`` gives from the
+relay run, saying so) on the MuJoCo loop, compares with the measured runs on
 features that separate effects, fits every candidate effect of the
-vocabulary, and names the one that closes the gap (or ``none``). Prints a
-table (or the spec's JSON with ``--json``); ``--report DIR`` writes
-before/after plots, a Rerun recording and the updated model; ``--write``
-adds the winner to the session's ``[[effects]]``.
+vocabulary, adds the one that closes most of the gap and searches again (two
+effects at most); answers ``named``, ``none``, ``absorbed`` (a linear effect
+the identified model took in) or ``unexplained`` (with what the residual looks
+like). Prints a table (or JSON with ``--json``); ``--report DIR`` writes
+before/after overlays for every run, the ranking, the residual, a Rerun
+recording and the updated model; ``--write`` adds the effects to the
+session's ``[[effects]]``.
 
     uavsim gap flights/thermal_kf --report reports/thermal_kf --json
 """
@@ -28,25 +32,29 @@ def register(subparsers) -> None:
     p.add_argument("--report", metavar="DIR", help="write plots, gap.rrd, gap.json and model.toml here")
     p.add_argument("--write", action="store_true", help="write the updated model and effects into the session")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated noise (default 0)")
+    p.add_argument("--models", metavar="DIR", help="networks for identifying the base model when the session has "
+                   "no [model] (default: uavsim identify's)")
+    p.add_argument("--max-effects", type=int, default=2, help="most effects added one after the other (default 2)")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
-    from uavsim.gap.workflow import format_table, read_model_file, run_gap, updated_session
+    from uavsim.gap.iterate import analyse, format_flow
+    from uavsim.gap.workflow import read_model_file, updated_session
 
     session = read_session(args.session)
     model = read_model_file(args.model, session.loop) if args.model else None
-    result = run_gap(session, model=model, seed=args.seed, log=eprint)
+    flow = analyse(session, model, models=args.models, seed=args.seed, max_effects=args.max_effects, log=eprint)
     if args.report:
-        from uavsim.gap.report import write_report
+        from uavsim.gap.overlay import write_flow_report
 
-        eprint(f"report: {write_report(session, result, args.report)}")
+        eprint(f"report: {write_flow_report(flow, args.report)}")
     if args.write:
         path = session.path or args.session
-        write_session(updated_session(session, result), path)
+        write_session(updated_session(session, flow.final), path)
         eprint(f"updated model written to {path}")
     if args.json:
-        print_json(result.to_json())
+        print_json(flow.to_json())
     else:
-        print(format_table(result))
+        print(format_flow(flow))
     return 0

@@ -13,7 +13,11 @@ Modules: :mod:`~uavsim.gap.features` (features, z-scores, the gap),
 registry effects for batched fits),
 :mod:`~uavsim.gap.workflow` (fit, rank, decide), :mod:`~uavsim.gap.report`
 (plots, Rerun recording, updated model), :mod:`~uavsim.gap.hidden`
-(hidden-effect sessions for tests and ``uavsim bench gap``).
+(hidden-effect sessions for tests and ``uavsim bench gap``),
+:mod:`~uavsim.gap.iterate` (what ``uavsim gap`` runs: base model identified
+when the session has none, effects added one by one, ``none`` / ``absorbed`` /
+``unexplained``), :mod:`~uavsim.gap.residual` (the residual's character),
+:mod:`~uavsim.gap.overlay` (the report's overlays and ranking).
 
     from uavsim.formats import read_session
     from uavsim.gap import run_gap, format_table, write_report
@@ -24,6 +28,7 @@ registry effects for batched fits),
     write_report(session, result, "reports/thermal_kf")
 """
 
+from uavsim.gap.iterate import FlowResult, analyse, format_flow
 from uavsim.gap.report import model_toml, write_report
 from uavsim.gap.workflow import (
     CANDIDATES,
@@ -36,6 +41,9 @@ from uavsim.gap.workflow import (
 
 __all__ = [
     "CANDIDATES",
+    "FlowResult",
+    "analyse",
+    "format_flow",
     "GapResult",
     "format_table",
     "model_toml",

@@ -1,0 +1,284 @@
+"""Iterated gap workflow: effects one by one, ``none`` / ``absorbed`` / ``unexplained``, the residual, the report.
+
+The decision logic is tested with the single search replaced by a scripted one
+(the searches themselves are tested in test_gap_workflow.py); the residual and
+the report run on real features of synthetic relay runs.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from uavsim.errors import UserError
+from uavsim.formats.session import EffectSpec, ModelSpec, Run, RunData, RunSpec, Session
+from uavsim.gap import iterate
+from uavsim.gap.residual import residual_character, run_residual
+from uavsim.gap.simulate import SimRun
+from uavsim.gap.workflow import GapResult
+
+RATE = 200.0
+
+
+def _relay(period=0.5, amp=1.0, cycles=10, h=1.0, squash=0.0):
+    t = np.arange(int(cycles * period * RATE)) / RATE
+    u = np.where(np.sin(2 * np.pi * t / period) >= 0, h, -h)
+    y = -amp * np.cos(2 * np.pi * t / period)
+    y = y - squash * amp * np.cos(6 * np.pi * t / period)  # a 3rd harmonic: a flattened cycle
+    return t, y, u
+
+
+def _session(runs=((0.5, 1.0, 10),), loop="pitch"):
+    out = []
+    for i, (period, amp, cycles) in enumerate(runs):
+        t, y, u = _relay(period, amp, cycles)
+        out.append(
+            Run(
+                RunSpec(f"r{i}.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0),
+                RunData(t, np.zeros_like(t), y, u),
+            )
+        )
+    return Session(
+        loop, RATE, out, model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+    )
+
+
+def _sim(t, y, u):
+    return SimRun(t, np.zeros_like(t), y, u, False)
+
+
+def _script(monkeypatch, answers):
+    """Replace run_gap by a scripted search: answers[k] = (effect, gap_before, gap_after) of search k."""
+    calls = []
+
+    def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None):
+        effect, gb, ga = answers[len(calls)]
+        calls.append({"effects": [e.name for e in session.effects], "candidates": candidates})
+        sims = [_sim(r.data.t, r.data.y, r.data.u) for r in session.runs]
+        params = {} if effect == "none" else {"x": 1.0}
+        effects = list(session.effects) + ([] if effect == "none" else [EffectSpec(effect, params)])
+        ranking = [{"effect": effect, "params": params, "gap": ga, "score": ga}]
+        return GapResult(effect, params, gb, ga, ranking, [], model or session.model, effects, seed, 0.1,
+                         sims_before=sims, sims_after=sims)  # fmt: skip
+
+    monkeypatch.setattr(iterate, "run_gap", fake)
+    return calls
+
+
+def test_second_effect_is_searched_on_what_is_left(monkeypatch):
+    calls = _script(monkeypatch, [("bias", 10.0, 3.0), ("dead_zone", 3.0, 1.0)])
+    flow = iterate.analyse(_session())
+    assert flow.answer == "named" and [e.name for e in flow.found] == ["bias", "dead_zone"]
+    assert calls[1]["effects"] == ["bias"] and "bias" not in calls[1]["candidates"]
+    assert (flow.gap_before, flow.gap_after) == (10.0, 1.0)
+    assert flow.to_json()["found"] == [{"name": "bias", "x": 1.0}, {"name": "dead_zone", "x": 1.0}]
+
+
+def test_iteration_stops_when_nothing_more_is_removed(monkeypatch):
+    calls = _script(monkeypatch, [("lag", 10.0, 2.0), ("none", 2.0, 2.0)])
+    flow = iterate.analyse(_session())
+    assert flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(calls) == 2
+    assert flow.to_json()["effect"] == "lag"
+
+
+def test_max_effects_one_is_the_single_search(monkeypatch):
+    calls = _script(monkeypatch, [("lag", 10.0, 2.0)])
+    assert len(iterate.analyse(_session(), max_effects=1).found) == 1 and len(calls) == 1
+
+
+@pytest.mark.parametrize("gap, answer", [(0.5 * iterate.NONE_GAP["attitude"], "none"),
+                                         (2.0 * iterate.NONE_GAP["attitude"], "unexplained")])  # fmt: skip
+def test_none_below_the_threshold_unexplained_above(monkeypatch, gap, answer):
+    _script(monkeypatch, [("none", gap, gap)])
+    flow = iterate.analyse(_session())
+    assert flow.answer == answer and flow.found == []
+    assert "answer: " + answer in iterate.format_flow(flow)
+
+
+def test_altitude_has_its_own_threshold(monkeypatch):
+    gap = 0.5 * (iterate.NONE_GAP["attitude"] + iterate.NONE_GAP["altitude"])
+    _script(monkeypatch, [("none", gap, gap)])
+    assert iterate.analyse(_session(loop="altitude")).answer == "none"
+
+
+def test_absorbed_reads_the_move_of_tau_off_the_identification():
+    ident = {
+        "params": {"tau": 0.030},
+        "class_params": {"tau": 0.008},
+        "oscillation": {"period": 0.4},
+    }
+    a = iterate.absorbed_by(ident)
+    assert (
+        a["parameter"] == "tau" and a["moved_s"] == pytest.approx(0.022) and "lag" in a["effects"]
+    )
+    # a few ms beyond the class at this period is what a clean vehicle shows: nothing absorbed
+    assert iterate.absorbed_by({**ident, "params": {"tau": 0.012}}) is None
+    assert iterate.absorbed_by(None) is None
+
+
+def test_identified_base_is_used_and_said(monkeypatch):
+    _script(monkeypatch, [("none", 1.0, 1.0)])
+    ident = {"run": "r0.csv", "class": 3, "params": {"tau": 0.05}, "class_params": {"tau": 0.01},
+             "oscillation": {"period": 0.5}, "refused_runs": ["r9.csv: no steady state"]}  # fmt: skip
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.05, noise_std=0.0)
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
+    s = _session()
+    s.model = None
+    msgs = []
+    flow = iterate.analyse(s, log=msgs.append)
+    assert flow.base_source == "identified" and flow.base is model
+    assert any(m.startswith("no [model]: base model identified from r0.csv") for m in msgs)
+    assert "identification refused r9.csv: no steady state" in msgs
+    assert flow.answer == "absorbed" and flow.absorbed["moved_s"] == pytest.approx(0.04)
+
+
+def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
+    import uavsim.learning.identify as ident
+
+    def fake(path, model_dir=None, run=None):
+        if run == "r0.csv":
+            raise UserError("no steady state")
+        return {
+            "run": run,
+            "class": 1,
+            "params": {"K": 1.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.02},
+            "noise_std": 0.1,
+        }
+
+    monkeypatch.setattr(ident, "identify_session", fake)
+    s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
+    s.model = None
+    model, ans = iterate.identify_base(s)
+    assert (
+        ans["run"] == "r1.csv"
+        and ans["refused_runs"] == ["r0.csv: no steady state"]
+        and model.tau == 0.02
+    )
+    monkeypatch.setattr(
+        ident, "identify_session", lambda *a, **k: (_ for _ in ()).throw(UserError("bad"))
+    )
+    with pytest.raises(UserError, match="no relay run identifies a base model"):
+        iterate.identify_base(s)
+
+
+def test_dead_run_is_dropped_and_named(monkeypatch):
+    calls = _script(monkeypatch, [("none", 1.0, 1.0)])
+    s = _session(runs=((0.5, 1.0, 10), (0.5, 1.0, 2)))  # the second holds too few cycles
+    flow = iterate.analyse(s)
+    assert flow.dropped == ["r1.csv"] and len(flow.session.runs) == 1 and calls
+    s = _session(runs=((0.5, 1.0, 2),))
+    with pytest.raises(UserError, match="no relay run holds 3 full cycles"):
+        iterate.live_runs(s)
+
+
+def test_residual_says_which_run_amplitude_and_harmonic():
+    s = _session(runs=((0.5, 1.0, 10), (0.5, 1.0, 10)))
+    t, y, u = _relay(0.5, 1.0, 10)
+    ts, ys, us = _relay(0.5, 0.8, 10, squash=0.15)  # run 1's model: smaller, with a 3rd harmonic
+    ch = residual_character(s, [_sim(t, y, u), _sim(ts, ys, us)])
+    assert ch["carried_by"] == [1]
+    r = ch["runs"][1]
+    assert r["amp_ratio"] == pytest.approx(1.0 / (0.8 * 1.15), rel=0.05)
+    assert 3 in ch["harmonics"] and r["harmonics"][3] > 5 * r["harmonics"][2]
+    assert "run 1 r1" in ch["summary"] and "harmonics" in ch["summary"]
+    assert ch["runs"][0]["size"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_residual_of_a_run_the_model_cannot_fly():
+    t, y, u = _relay()
+    bad = SimRun(t, np.zeros_like(t), np.full_like(t, np.nan), u, True)
+    r = run_residual(RunSpec("a.csv", "np-mrft", beta=-0.73, h=1.0), t, y, u, bad)
+    assert r["size"] == math.inf and "does not reproduce" in r["where"]
+
+
+def test_flow_report_has_an_overlay_per_run_and_the_ranking(monkeypatch, tmp_path):
+    pytest.importorskip("matplotlib")
+    _script(monkeypatch, [("bias", 10.0, 2.0), ("none", 2.0, 2.0)])
+    s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
+    flow = iterate.analyse(s)
+    monkeypatch.setattr(
+        "uavsim.gap.overlay.write_report", lambda session, result, folder: _mk(folder)
+    )
+    from uavsim.gap.overlay import write_flow_report
+
+    out = write_flow_report(flow, tmp_path / "rep")
+    names = {p.name for p in out.iterdir()}
+    assert {
+        "overlay_run0_r0.png",
+        "overlay_run1_r1.png",
+        "ranking.png",
+        "flow.json",
+        "flow.txt",
+    } <= names
+    assert json.loads((out / "flow.json").read_text())["answer"] == "named"
+    assert "residual:" in (out / "flow.txt").read_text()
+
+
+def _mk(folder):
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def test_run_the_base_model_cannot_fly_is_set_aside(monkeypatch):
+    calls = _script(monkeypatch, [("none", 1.0, 1.0)])
+    fake = iterate.run_gap
+    seen = []
+
+    def first_refuses(session, **kw):
+        seen.append(len(session.runs))
+        if len(seen) == 1:
+            raise UserError("run 1 (r1.csv): the model's step response diverges; check the model")
+        return fake(session, **kw)
+
+    monkeypatch.setattr(iterate, "run_gap", first_refuses)
+    flow = iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
+    assert seen == [2, 1] and len(calls) == 1
+    assert flow.dropped == ["r1.csv (the base model cannot fly it)"] and len(flow.session.runs) == 1
+    monkeypatch.setattr(
+        iterate, "run_gap", lambda s, **kw: (_ for _ in ()).throw(UserError("something else"))
+    )
+    with pytest.raises(UserError, match="something else"):
+        iterate.analyse(_session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12))))
+
+
+def test_search_stops_when_the_found_effect_makes_a_run_unflyable(monkeypatch):
+    _script(monkeypatch, [("lag", 10.0, 2.0)])
+    fake = iterate.run_gap
+    seen = []
+
+    def second_refuses(session, **kw):
+        seen.append(1)
+        if len(seen) == 2:
+            raise UserError("run 0 (r0.csv): the model's step response diverges; check the model")
+        return fake(session, **kw)
+
+    monkeypatch.setattr(iterate, "run_gap", second_refuses)
+    flow = iterate.analyse(_session())
+    assert (
+        flow.answer == "named" and [e.name for e in flow.found] == ["lag"] and len(flow.steps) == 1
+    )
+
+
+def test_cli_identifies_when_the_session_has_no_model(monkeypatch, tmp_path, capsys):
+    import argparse
+
+    from uavsim.cli.gap_cmd import register
+    from uavsim.formats.session import write_session
+
+    _script(monkeypatch, [("none", 1.0, 1.0)])
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+    ident = {"run": "r0.csv", "class": 2, "params": {"tau": 0.01}, "class_params": {"tau": 0.01},
+             "oscillation": {"period": 0.5}, "refused_runs": []}  # fmt: skip
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
+    s = _session()
+    s.model = None
+    write_session(s, tmp_path / "s")
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["gap", str(tmp_path / "s"), "--json"])
+    assert args.func(args) == 0
+    out = capsys.readouterr()
+    assert "no [model]: base model identified from r0.csv" in out.err
+    j = json.loads(out.out)
+    assert (j["answer"], j["base_source"], j["effect"]) == ("none", "identified", "none")

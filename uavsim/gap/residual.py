@@ -1,0 +1,141 @@
+"""What is left between the measurement and a model: the residual's character, in words and numbers.
+
+When no effect of the vocabulary explains the gap, the workflow answers
+``unexplained`` and says what the residual looks like instead of forcing a
+name: in which runs it is (relay amplitude ``h``, ``beta``, steps), at which
+amplitude (measured over simulated oscillation amplitude and period), where in
+the relay cycle (the phase where the mean cycle waveforms differ most,
+relative to the relay's switching), and in which harmonics (the waveform
+harmonics whose difference is largest).
+
+    ch = residual_character(session, sims)    # sims: one SimRun per run (the model's seed-0 simulation)
+    ch["summary"]                             # one line: "runs 0, 1 (h 0.02-0.06, beta -0.73); amplitude ..."
+    ch["runs"][0]["where"]                    # e.g. "just after the rising switch (phase 0.05)"
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from uavsim.formats.session import STEP_RUN, Session
+from uavsim.gap.features import run_features
+from uavsim.gap.simulate import SimRun
+
+__all__ = ["residual_character", "run_residual"]
+
+#: harmonics of the mean cycle examined (1 = the fundamental)
+HARMONICS = (1, 2, 3, 4, 5)
+#: a run is listed as carrying the residual when its share of the total (over the relay runs,
+#: or over the steps) is at least this
+RUN_SHARE = 0.15
+
+
+def _where(phase: float, duty: float) -> str:
+    """Words for a point of the relay cycle (phase 0 = the relay's rising switch, ``duty`` = its falling one)."""
+    near = 0.08
+    if min(phase, 1.0 - phase) <= near:
+        return f"at the rising switch (phase {phase:.2f})"
+    if abs(phase - duty) <= near:
+        return f"at the falling switch (phase {phase:.2f})"
+    if phase < duty:
+        return f"while the relay is high, between switches (phase {phase:.2f})"
+    return f"while the relay is low, between switches (phase {phase:.2f})"
+
+
+def run_residual(spec, t: np.ndarray, y_meas: np.ndarray, u_meas: np.ndarray, sim: SimRun) -> dict:
+    """Residual character of one run: measured against one simulation of the same run.
+
+    Returns
+    -------
+    dict
+        ``file``, ``kind``, ``h``, ``beta``, ``size`` (RMS of the residual over the measured
+        amplitude, or over the step for steps), ``amp_ratio`` and ``period_ratio`` (measured
+        over simulated, relay runs), ``where`` and ``phase`` (where the mean cycles differ
+        most), ``harmonics`` (k -> |C_meas - C_sim| over the fundamental's size, relay runs).
+    """
+    out: dict = {"file": spec.file, "kind": spec.kind, "h": None if spec.h is None else float(spec.h),
+                 "beta": None if spec.beta is None else float(spec.beta)}  # fmt: skip
+    fm = run_features(spec, t, y_meas, u_meas)
+    fs = None if sim.diverged else run_features(spec, sim.t, sim.y, sim.u)
+    if fm is None:
+        out.update(size=math.nan, where="the measured run holds no analysable cycle")
+        return out
+    if fs is None:
+        out.update(
+            size=math.inf, where="the model does not reproduce this run (no cycle or diverged)"
+        )
+        return out
+    if "_wave" not in fm:  # step: the smoothed responses, normalized by the step
+        d = (
+            fm["_trace"][: min(fm["_trace"].size, fs["_trace"].size)]
+            - fs["_trace"][: fm["_trace"].size]
+        )
+        k = int(np.argmax(np.abs(d))) if d.size else 0
+        out.update(size=float(np.sqrt(np.mean(d * d))) if d.size else math.nan,
+                   where=f"in the step response, {k / max(d.size, 1):.0%} of the way through")  # fmt: skip
+        return out
+    d = fm["_wave"] - fs["_wave"]
+    k = int(np.argmax(np.abs(d)))
+    phase = k / d.size
+    cm, cs = np.fft.rfft(fm["_wave"]) / d.size, np.fft.rfft(fs["_wave"]) / d.size
+    c1 = abs(cm[1]) + 1e-12
+    out.update(
+        size=float(np.sqrt(np.mean(d * d))),
+        amp_ratio=math.exp(fm["amplitude"] - fs["amplitude"]),
+        period_ratio=math.exp(fm["period"] - fs["period"]),
+        offset_diff=float(fm["offset"] - fs["offset"]),
+        phase=phase,
+        where=_where(phase, float(fm["duty"])),
+        harmonics={h: float(abs(cm[h] - cs[h]) / c1) for h in HARMONICS if h < cm.size},
+    )
+    return out
+
+
+def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
+    """The residual of ``session`` against ``sims`` (one simulation per run), per run and in one line.
+
+    Returns
+    -------
+    dict
+        ``runs`` (list of :func:`run_residual` dicts), ``carried_by`` (indices of the relay runs
+        holding at least :data:`RUN_SHARE` of the relay runs' residual, then the same for steps), ``harmonics`` (the two largest,
+        over those runs), ``summary`` (str).
+    """
+    runs = [
+        run_residual(r.spec, r.data.t, r.data.y, r.data.u, s)
+        for r, s in zip(session.runs, sims, strict=True)
+    ]
+    size = np.array([r["size"] if math.isfinite(r["size"]) else (1e3 if r["size"] == math.inf else 0.0)
+                     for r in runs])  # fmt: skip
+    # relay waveforms and step traces are normalized differently: each kind is shared out on its own
+    step = np.array([r["kind"] == STEP_RUN for r in runs])
+    carried = []
+    for mask in (~step, step):
+        total = float(size[mask].sum())
+        carried += [i for i in np.flatnonzero(mask) if total > 0 and size[i] / total >= RUN_SHARE]
+    carried = [int(i) for i in carried]
+    harm: dict[int, float] = {}
+    for i in carried:
+        for h, v in runs[i].get("harmonics", {}).items():
+            harm[h] = harm.get(h, 0.0) + v
+    top = sorted(harm, key=lambda h: -harm[h])[:2]
+    parts = []
+    for i in carried:
+        r = runs[i]
+        what = f"run {i} {Path(r['file']).stem} ({r['kind']}"
+        what += f", h {r['h']:.3g}" if r["h"] is not None else ""
+        what += f", beta {r['beta']:.2g})" if r["beta"] is not None else ")"
+        if "amp_ratio" in r:
+            what += (f": amplitude x{r['amp_ratio']:.2f}, period x{r['period_ratio']:.2f}, "
+                     f"waveform off by {r['size']:.0%} of the amplitude, most {r['where']}")  # fmt: skip
+        else:
+            what += f": {r['where']}"
+        parts.append(what)
+    summary = "; ".join(parts) or "no run departs"
+    if top:
+        summary += "; largest in harmonics " + ", ".join(str(h) for h in top)
+    return {"runs": runs, "carried_by": carried, "harmonics": top, "summary": summary}
