@@ -134,9 +134,9 @@ def test_identified_base_is_used_and_said(monkeypatch):
 
 
 def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
-    import uavsim.learning.identify as ident
+    import uavsim.ident.session as ident
 
-    def fake(path, model_dir=None, run=None):
+    def fake(path, models=None, run=None):
         if run == "r0.csv":
             raise UserError("no steady state")
         return {
