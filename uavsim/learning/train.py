@@ -461,25 +461,42 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
     }
 
 
+#: belief temperatures tried beside the NLL-fitted one (``_val_metrics``)
+TEMPERATURES = (0.5, 1.0, 2.0)
+
+
 def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainData, device: torch.device, *,
                  temperature: float | None = None, decision: str | None = None) -> dict[str, Any]:
     """Metrics of identification's class decision, and of both decisions beside them (``*_bayes``, ``*_argmax``).
 
-    ``temperature``: the belief's (``uavsim.learning.decision``); None fits it to this set.
-    ``decision``: ``bayes`` or ``argmax``; None takes Bayes unless argmax has the lower mean J
-    on this set (validation: what the best epoch exports; the test set gets the exported ones).
+    ``temperature``: the belief's (``uavsim.learning.decision``); None tries the NLL-fitted one
+    and ``TEMPERATURES`` and keeps the one whose Bayes answers have the least mean log J.
+    ``decision``: ``bayes`` or ``argmax``; None takes Bayes unless argmax has the lower mean
+    log J on this set (validation: what the best epoch exports; the test set gets the exported
+    ones). Mean log J, the loss's cost, rather than mean J: with unstable answers at 1e3 the mean
+    J of a set of a thousand is decided by one or two inputs.
     """
     true = data.labels[idx]
     if X.shape[0] == 0:
         return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
-    T = fit_temperature(act, true) if temperature is None else float(temperature)
+    logJ = np.log(np.clip(np.nan_to_num(np.asarray(data.J, np.float64), nan=J_CLIP[1], posinf=J_CLIP[1]), *J_CLIP))
+
+    def cost(cls: np.ndarray) -> float:
+        return float(logJ[cls, true].mean())
+
+    if temperature is None:
+        temps = (fit_temperature(act, true), *TEMPERATURES)
+        T = min(temps, key=lambda t: cost(decide(act, data.J, temperature=t).cls))
+    else:
+        T = float(temperature)
     pred = {d: decide(act, data.J, decision=d, temperature=T).cls for d in ("bayes", "argmax")}
     m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
     if decision is None:
-        decision = "bayes" if m["bayes"]["mean_J"] <= m["argmax"]["mean_J"] else "argmax"
+        decision = "bayes" if cost(pred["bayes"]) <= cost(pred["argmax"]) else "argmax"
     return {**m[decision], **gain_metrics(pred[decision], data, idx),
             **{f"{k}_{d}": m[d][k] for d in pred for k in ("top1", "mean_J", "p95_J")},
+            **{f"mean_log_J_{d}": cost(c) for d, c in pred.items()},
             "temperature": T, "decision": decision}
 
 
