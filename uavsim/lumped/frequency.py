@@ -67,6 +67,7 @@ def freq_response_batch(
     att_kp=None,
     att_kd=None,
     att_N=None,
+    att_rate_hz=None,
 ) -> np.ndarray:
     """Frequency response of many lumped processes of one family.
 
@@ -82,6 +83,10 @@ def freq_response_batch(
         Drag time constant (s), attitude delay (s), attitude PD gains for the
         unit-gain attitude process, and its derivative filter (rad/s). ``att_N``
         defaults to ``10 * Omega_att`` (see ``uavsim.lumped.lateral``).
+    att_rate_hz : float or None, lateral only
+        Rate of the attitude PD, Hz: the attitude loop is closed by the PD sampled there
+        (``uavsim.lumped.lateral.attitude_closed_loop_sampled``: the response over the
+        controller's samples with the command's hold removed). None: the continuous PD.
 
     Returns
     -------
@@ -100,7 +105,10 @@ def freq_response_batch(
 
         if T2 is None or tau_in is None or att_kp is None or att_kd is None:
             raise UserError("lateral frequency response needs T2, tau_in, att_kp and att_kd")
-        Tatt = attitude_closed_loop_batch(w, T_prop, T1, tau_in, att_kp, att_kd, att_N)
+        # the attitude loop on the shared frequencies when they are (an attitude class under many lateral
+        # processes): (1, W) broadcast against the batch
+        Tatt = attitude_closed_loop_batch(omega if omega.ndim == 1 else w, T_prop, T1, tau_in, att_kp, att_kd, att_N,
+                                          rate_hz=att_rate_hz)
         return _col(K, B) * np.exp(-s * _col(tau, B)) * Tatt / (s * (_col(T2, B) * s + 1.0))
     raise UserError(f"unknown loop family {family!r}")
 
@@ -169,7 +177,10 @@ def mrft_prediction_batch(
     w_lo, w_hi : float
         Search band, rad/s.
     **params
-        As ``freq_response_batch`` (arrays of shape (B,) or scalars).
+        As ``freq_response_batch`` (arrays of shape (B,) or scalars). A lateral process with
+        ``att_rate_hz`` is a sampled loop: the relay's command is held at that rate (the
+        attitude PD reads it only at its samples), so the balance is on ``hold(w) G(j w)``,
+        ``hold(w) = sinc(w Ts / 2) e^{-j w Ts / 2}``, and the amplitude is of the sampled output.
 
     Returns
     -------
@@ -204,8 +215,13 @@ def mrft_prediction_batch(
             w = w - (phase(w) - target) / df
         omega = w
     else:
+        rate = one_rate(params.get("att_rate_hz"))
+        if rate is not None:
+            # the attitude PD samples its reference, so the relay acts at the samples too: the
+            # balance is on the sequence response, the command's hold included (below Nyquist)
+            w_hi = min(w_hi, 0.999 * math.pi * rate)
         wg = np.geomspace(w_lo, w_hi, 4000)
-        ph = unwrapped_phase_batch(family, wg, **params)
+        ph = unwrapped_phase_batch(family, wg, **params) - _hold_lag(wg, rate)
         B = ph.shape[0]
         below = ph <= target
         has = below.any(axis=1)
@@ -215,7 +231,7 @@ def mrft_prediction_batch(
         lw0, lw1 = np.log(wg[i1 - 1]), np.log(wg[i1])
         u = np.linspace(0.0, 1.0, 64)
         lw = lw0[:, None] + (lw1 - lw0)[:, None] * u[None, :]
-        G = freq_response_batch(family, np.exp(lw), **{**params, "K": 1.0})
+        G = freq_response_batch(family, np.exp(lw), **{**params, "K": 1.0}) * _hold(np.exp(lw), rate)
         # continue the unwrapped phase from the bracket's left end
         ph_loc = np.unwrap(np.angle(G), axis=1)
         ph_loc = ph_loc - ph_loc[:, :1] + ph[rows, i1 - 1][:, None]
@@ -229,7 +245,32 @@ def mrft_prediction_batch(
     if ok.any():
         sel = {k: (np.asarray(v).reshape(-1)[ok] if np.size(v) > 1 else v) for k, v in params.items()}
         G[ok] = freq_response_batch(family, omega[ok][:, None], **sel)[:, 0]
+        if family not in ("attitude", "altitude", "roll", "pitch"):
+            G[ok] *= _hold(omega[ok], params.get("att_rate_hz"))
     return omega, 4.0 * h * np.abs(G) / np.pi
+
+
+def one_rate(rate_hz) -> float | None:
+    """A sampled loop's rate, Hz, from a scalar or a batch's array of one value (None stays None)."""
+    if rate_hz is None:
+        return None
+    r = np.unique(np.asarray(rate_hz, dtype=float).reshape(-1))
+    if r.size != 1 or not (math.isfinite(r[0]) and r[0] > 0):
+        raise UserError(f"a batch of lateral processes needs one attitude PD rate > 0 Hz, got {r.tolist()}")
+    return float(r[0])
+
+
+def _hold(omega, rate_hz) -> np.ndarray | float:
+    """Fundamental of a command held over ``1/rate_hz`` against its samples (1 without a rate)."""
+    if rate_hz is None:
+        return 1.0
+    x = np.asarray(omega, dtype=float) / (2.0 * one_rate(rate_hz))
+    return np.sinc(x / np.pi) * np.exp(-1j * x)
+
+
+def _hold_lag(omega, rate_hz) -> np.ndarray | float:
+    """The hold's phase lag ``omega / (2 rate_hz)``, rad (0 without a rate)."""
+    return 0.0 if rate_hz is None else np.asarray(omega, dtype=float) / (2.0 * one_rate(rate_hz))
 
 
 def mrft_prediction(p: LumpedParams, beta: float, h: float = 1.0) -> tuple[float, float]:
