@@ -10,9 +10,9 @@ gets a sub-grid of the ``(T2, tau_out)`` box designed on exactly that loop:
   (the attitude PD reads the relay's output only at its samples, so the harmonic balance is on
   the sampled response, the command's hold included), the magnitudes of the gain estimate and
   the rule's gains. The cycles stored (``omega``, ``amplitude``) are exact relay simulations of
-  the lifted sampled loop (``uavsim.lumped.lateral.sampled_relay_cycle``). Near the closed
-  attitude loop's resonance, where the lateral MRFT runs, the continuous attitude loop is off
-  by up to 60% in magnitude and 40 deg in phase on the fastest attitude classes.
+  the lifted sampled loop (``uavsim.lumped.lateral.sampled_relay_cycle``). At the classes'
+  MRFT frequencies the continuous attitude loop is off by up to 28% in magnitude and 13 deg in
+  phase (docs/results/lateral-grid.md).
 * **The relay's beta** (``choose_beta``): NP-MRFT needs ``beta >= -1 + sin(2 pi tau_obs / T0)``.
   Each attitude class takes the lowest beta, from -0.73 (the inner loops') up in steps of
   0.05, at which an observation time of ``TAU_OBS`` (0.03 s, the recipes') fits the fastest
