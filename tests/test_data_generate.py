@@ -164,7 +164,7 @@ def test_lateral_one_file_per_attitude_class(tmp_path):
 loop = "lateral"
 seed = 4
 att_classes = [0]
-classes = [0, 14]
+classes = [0, 5]
 [test]
 h = 0.05
 [episodes]
@@ -178,9 +178,9 @@ chunk = 4
     ds = open_dataset(tmp_path / "lat_a00.h5")
     sub = load_grid("lateral").lateral(0)
     assert ds.attrs["att_class"] == 0 and ds.attrs["loop"] == "lateral" and ds.n_classes == 2
-    np.testing.assert_allclose(ds.class_table["T2"], sub.params["T2"][[0, 14]])
+    np.testing.assert_allclose(ds.class_table["T2"], sub.params["T2"][[0, 5]])
     # slow lateral cycles: 200 Hz sampling hardly matters, the reference cycle is the grid's
-    np.testing.assert_allclose(ds.class_table["period_sim"], sub.period[[0, 14]], rtol=0.06)
+    np.testing.assert_allclose(ds.class_table["period_sim"], sub.period[[0, 5]], rtol=0.06)
 
 
 def test_plan_is_deterministic_and_chunks_cover():

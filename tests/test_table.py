@@ -143,6 +143,34 @@ def test_table_figures_small():
     assert 1.0 < rep["neighbour_J_across_levels"]["median"] < 1.2
 
 
+def test_lateral_table_covers_the_fast_corner():
+    """Where the old grid had no class (T2 < 0.6 s, tau_out <= 0.01 s over fast attitude classes), the
+    best class's robust answer, scaled by the gain identification estimates, is stable and within 10% of
+    the point's own optimum at 200 Hz; the class nearest in the box is not a safe answer there."""
+    from uavsim.tuning.grid import class_process_params
+    from uavsim.tuning.optimal import optimal_gains
+
+    g, t = load_grid("lateral"), load_table("lateral")
+    X = np.array([[0.22, 0.0007], [0.4, 0.003], [0.55, 0.009], [0.3, 0.0055]])
+    best = []
+    for a in (30, 40, 47):
+        sg, st = g.lateral(a), t.lateral(a)
+        pp = {"K": 1.0, **class_process_params("lateral", X, st.attitude)}
+        o = optimal_gains("lateral", 200.0, rule=sg.rule, **pp)
+        cp = class_process_params("lateral", np.column_stack([sg.params["T2"], sg.params["tau"]]), st.attitude)
+        J = j_of_points("lateral", 200.0, pp, o.omega, o.ise, cp, st.omega, st.robust_kp, st.robust_kd, st.N)
+        best.append(J.min(axis=0))
+    best = np.concatenate(best)
+    assert np.all(best < 1.10), best
+
+
+def test_lateral_table_refuses_another_attitude_table():
+    g = load_grid("lateral")
+    g.built = {**g.built, "attitude_table_hash": "0" * 64}
+    with pytest.raises(UserError, match="designed over another attitude table"):
+        build_table("lateral", grid=g)
+
+
 @pytest.fixture
 def cli(monkeypatch):
     monkeypatch.setattr(cli_main, "_COMMAND_MODULES", ["uavsim.cli.grid_cmd"])

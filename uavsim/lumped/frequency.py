@@ -77,6 +77,7 @@ def freq_response_batch(
     att_kp=None,
     att_kd=None,
     att_N=None,
+    att_rate_hz=None,
 ) -> np.ndarray:
     """Frequency response of many lumped processes of one family.
 
@@ -92,6 +93,10 @@ def freq_response_batch(
         Drag time constant (s), attitude delay (s), attitude PD gains for the
         unit-gain attitude process, and its derivative filter (rad/s). ``att_N``
         defaults to ``10 * Omega_att`` (see ``uavsim.lumped.lateral``).
+    att_rate_hz : float or None, lateral only
+        Rate of the attitude PD, Hz: the attitude loop is closed by the PD sampled there
+        (``uavsim.lumped.lateral.attitude_closed_loop_sampled``: the response over the
+        controller's samples with the command's hold removed). None: the continuous PD.
 
     Returns
     -------
@@ -108,7 +113,10 @@ def freq_response_batch(
     if family in ("lateral", "lateral_x", "lateral_y"):
         if T2 is None or tau_in is None or att_kp is None or att_kd is None:
             raise UserError("lateral frequency response needs T2, tau_in, att_kp and att_kd")
-        Tatt = attitude_closed_loop_batch(w, T_prop, T1, tau_in, att_kp, att_kd, att_N)
+        # the attitude loop on the shared frequencies when they are (an attitude class under many lateral
+        # processes): (1, W) broadcast against the batch
+        Tatt = attitude_closed_loop_batch(omega if omega.ndim == 1 else w, T_prop, T1, tau_in, att_kp, att_kd, att_N,
+                                          rate_hz=att_rate_hz)
         return column(K, B) * np.exp(-s * column(tau, B)) * Tatt / (s * (column(T2, B) * s + 1.0))
     raise UserError(f"unknown loop family {family!r}")
 
@@ -178,7 +186,10 @@ def mrft_prediction_batch(
     w_lo, w_hi : float
         Search band, rad/s.
     **params
-        As ``freq_response_batch`` (arrays of shape (B,) or scalars).
+        As ``freq_response_batch`` (arrays of shape (B,) or scalars). A lateral process with
+        ``att_rate_hz`` is a sampled loop: the relay's command is held at that rate (the
+        attitude PD reads it only at its samples), so the balance is on ``hold(w) G(j w)``,
+        ``hold(w) = sinc(w Ts / 2) e^{-j w Ts / 2}``, and the amplitude is of the sampled output.
 
     Returns
     -------
@@ -213,8 +224,13 @@ def mrft_prediction_batch(
             w = w - (phase(w) - target) / df
         omega = w
     else:
+        rate = one_rate(params.get("att_rate_hz"))
+        if rate is not None:
+            # the attitude PD samples its reference, so the relay acts at the samples too: the
+            # balance is on the sequence response, the command's hold included (below Nyquist)
+            w_hi = min(w_hi, 0.999 * math.pi * rate)
         wg = np.geomspace(w_lo, w_hi, 4000)
-        ph = unwrapped_phase_batch(family, wg, **params)
+        ph = unwrapped_phase_batch(family, wg, **params) - _hold_lag(wg, rate)
         B = ph.shape[0]
         below = ph <= target
         has = below.any(axis=1)
@@ -224,7 +240,7 @@ def mrft_prediction_batch(
         lw0, lw1 = np.log(wg[i1 - 1]), np.log(wg[i1])
         u = np.linspace(0.0, 1.0, 64)
         lw = lw0[:, None] + (lw1 - lw0)[:, None] * u[None, :]
-        G = freq_response_batch(family, np.exp(lw), **{**params, "K": 1.0})
+        G = freq_response_batch(family, np.exp(lw), **{**params, "K": 1.0}) * _hold(np.exp(lw), rate)
         # continue the unwrapped phase from the bracket's left end
         ph_loc = np.unwrap(np.angle(G), axis=1)
         ph_loc = ph_loc - ph_loc[:, :1] + ph[rows, i1 - 1][:, None]
@@ -238,7 +254,32 @@ def mrft_prediction_batch(
     if ok.any():
         sel = {k: (np.asarray(v).reshape(-1)[ok] if np.size(v) > 1 else v) for k, v in params.items()}
         G[ok] = freq_response_batch(family, omega[ok][:, None], **sel)[:, 0]
+        if family not in ("attitude", "altitude", "roll", "pitch"):
+            G[ok] *= _hold(omega[ok], params.get("att_rate_hz"))
     return omega, 4.0 * h * np.abs(G) / np.pi
+
+
+def one_rate(rate_hz) -> float | None:
+    """A sampled loop's rate, Hz, from a scalar or a batch's array of one value (None stays None)."""
+    if rate_hz is None:
+        return None
+    r = np.unique(np.asarray(rate_hz, dtype=float).reshape(-1))
+    if r.size != 1 or not (math.isfinite(r[0]) and r[0] > 0):
+        raise UserError(f"a batch of lateral processes needs one attitude PD rate > 0 Hz, got {r.tolist()}")
+    return float(r[0])
+
+
+def _hold(omega, rate_hz) -> np.ndarray | float:
+    """Fundamental of a command held over ``1/rate_hz`` against its samples (1 without a rate)."""
+    if rate_hz is None:
+        return 1.0
+    x = np.asarray(omega, dtype=float) / (2.0 * one_rate(rate_hz))
+    return np.sinc(x / np.pi) * np.exp(-1j * x)
+
+
+def _hold_lag(omega, rate_hz) -> np.ndarray | float:
+    """The hold's phase lag ``omega / (2 rate_hz)``, rad (0 without a rate)."""
+    return 0.0 if rate_hz is None else np.asarray(omega, dtype=float) / (2.0 * one_rate(rate_hz))
 
 
 def mrft_prediction(p: LumpedParams, beta: float, h: float = 1.0) -> tuple[float, float]:
@@ -281,7 +322,8 @@ def attitude_filter(T_prop, T1, tau_in, beta: float | None = None) -> np.ndarray
     return DERIVATIVE_FILTER_RATIO * w
 
 
-def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, att_kd, att_N=None) -> np.ndarray:
+def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, att_kd, att_N=None,
+                               rate_hz: float | None = None) -> np.ndarray:
     """Complementary sensitivity ``T_att(j w)`` of the closed attitude loop.
 
     Parameters
@@ -294,6 +336,9 @@ def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, at
         Attitude PD gains for the unit-gain process.
     att_N : float or ndarray (B,) or None
         Derivative filter, rad/s; None -> ``attitude_filter(T_prop, T1, tau_in)``.
+    rate_hz : float or None
+        The PD's rate, Hz: ``attitude_closed_loop_sampled`` (the PD sampled with a zero-order
+        hold, as flown); None: the continuous PD.
 
     Returns
     -------
@@ -301,6 +346,8 @@ def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, at
     """
     if att_N is None:
         att_N = attitude_filter(T_prop, T1, tau_in)
+    if rate_hz is not None:
+        return attitude_closed_loop_sampled(omega, T_prop, T1, tau_in, att_kp, att_kd, att_N, rate_hz)
     omega = np.asarray(omega, dtype=float)
     B = max(omega.shape[0] if omega.ndim == 2 else 1, *(np.size(v) for v in (T_prop, T1, tau_in, att_kp, att_kd, att_N)))
     w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
@@ -308,3 +355,93 @@ def attitude_closed_loop_batch(omega: np.ndarray, T_prop, T1, tau_in, att_kp, at
     C = column(att_kp, B) + column(att_kd, B) * s / (1.0 + s / column(att_N, B))
     L = C * freq_response_batch("attitude", w, 1.0, T_prop, T1, tau_in)
     return L / (1.0 + L)
+
+
+def _zoh_delayed(A: np.ndarray, b: np.ndarray, Ts: float, tau) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact ZOH discretization of B plants (A (B, n, n), b (B, n)) with input delays ``tau`` (B,).
+
+    ``x_{k+1} = Phi x_k + G_old v_{k-d-1} + G_new v_{k-d}`` with ``tau = (d + f) Ts``: over one
+    period the delayed command is the older sample for ``f Ts``, then the newer one.
+    Returns ``(Phi, G_old, G_new, d)``.
+    """
+    from scipy.linalg import expm
+
+    from uavsim.lumped.sampled import delay_split
+
+    Bn, n, _ = A.shape
+    d, f = delay_split(tau, Ts)
+
+    def aug(h: np.ndarray) -> np.ndarray:
+        M = np.zeros((Bn, n + 1, n + 1))
+        M[:, :n, :n] = A
+        M[:, :n, n] = b
+        return expm(M * h[:, None, None])
+
+    E_new = aug((1.0 - f) * Ts)  # e^{A (1-f) Ts} and its input integral
+    E_old = aug(f * Ts)
+    E = aug(np.full(Bn, Ts))
+    G_old = np.einsum("bij,bj->bi", E_new[:, :n, :n], E_old[:, :n, n])
+    return E[:, :n, :n], G_old, E_new[:, :n, n], d
+
+
+def attitude_closed_loop_sampled(omega: np.ndarray, T_prop, T1, tau_in, att_kp, att_kd, att_N,
+                                 rate_hz: float) -> np.ndarray:
+    """``T_att`` of the attitude loop closed by its PD sampled at ``rate_hz`` (zero-order hold).
+
+    The PD reads the attitude error at the samples ``t_k = k Ts`` (``uavsim.control.pd``:
+    ``C_d(z) = kp + kd a (1 - 1/z) / (Ts (1 - (1 - a)/z))``, ``a = Ts N / (1 + Ts N)``) and its
+    held command drives the continuous attitude process ``G_a`` (unit gain, delay ``tau_in``),
+    whose exact ZOH discretization is ``G_d(z)``. For a reference sequence ``u_k = e^{j w k Ts}``
+    the command sequence is ``C_d / (1 + C_d G_d) u_k`` at ``z = e^{j w Ts}``, and the
+    attitude's component at ``w`` is that times the hold's ``(1 - e^{-j w Ts}) / (j w Ts)``
+    and ``G_a(j w)``. This function returns
+
+        T_att(w) = G_a(j w) C_d(z) / (1 + C_d(z) G_d(z))
+
+    without the hold factor, so that the lateral response a controller at ``rate_hz`` measures
+    over its own samples (``uavsim.learning.identify.held_response`` of ``G``) is
+
+        hold(w) K e^{-j w tau_out} T_att(w) / (j w (T2 j w + 1))
+
+    up to the aliases of the harmonics at ``w + m 2 pi / Ts`` (below 1e-5 of the fundamental
+    for lateral cycles; ``lateral_response_sampled`` is the exact sampled response). As
+    ``rate_hz -> inf`` it tends to the continuous ``attitude_closed_loop_batch``.
+
+    Parameters
+    ----------
+    omega : ndarray (W,) or (B, W)
+        Frequencies, rad/s (> 0, below the Nyquist frequency ``pi rate_hz``).
+    T_prop, T1, tau_in, att_kp, att_kd, att_N : float or ndarray (B,)
+        Attitude process (unit gain, s), its PD and derivative filter (rad/s).
+    rate_hz : float
+        The attitude PD's rate, Hz.
+
+    Returns
+    -------
+    ndarray, complex, shape (B, W)
+    """
+    Ts = 1.0 / one_rate(rate_hz)
+    omega = np.asarray(omega, dtype=float)
+    B = max(omega.shape[0] if omega.ndim == 2 else 1, *(np.size(v) for v in (T_prop, T1, tau_in, att_kp, att_kd, att_N)))
+    w = np.broadcast_to(omega if omega.ndim == 2 else omega[None, :], (B, omega.shape[-1]))
+    Tp, T1c, tin = (np.broadcast_to(np.asarray(v, float).reshape(-1), (B,)) for v in (T_prop, T1, tau_in))
+    A = np.zeros((B, 3, 3))
+    A[:, 0, 1] = 1.0
+    A[:, 1, 1] = -1.0 / T1c
+    A[:, 1, 2] = 1.0 / T1c
+    A[:, 2, 2] = -1.0 / Tp
+    b = np.zeros((B, 3))
+    b[:, 2] = 1.0 / Tp
+    Phi, G_old, G_new, d = _zoh_delayed(A, b, Ts, tin)
+    zi = np.exp(-1j * w * Ts)  # 1/z
+    z = 1.0 / zi
+    # theta = first entry of (z I - Phi)^{-1} g: Phi is upper triangular (so is A), back substitution
+    P = Phi[:, :, :, None]
+    g = (G_old[:, :, None] * zi[:, None, :] + G_new[:, :, None]) * (zi ** d[:, None])[:, None, :]
+    x2 = g[:, 2] / (z - P[:, 2, 2])
+    x1 = (g[:, 1] + P[:, 1, 2] * x2) / (z - P[:, 1, 1])
+    Gd = (g[:, 0] + P[:, 0, 1] * x1 + P[:, 0, 2] * x2) / (z - P[:, 0, 0])
+    a = Ts * column(att_N, B) / (1.0 + Ts * column(att_N, B))
+    Cd = column(att_kp, B) + column(att_kd, B) * a * (1.0 - zi) / (Ts * (1.0 - (1.0 - a) * zi))
+    Ga = freq_response_batch("attitude", w, 1.0, Tp, T1c, tin)
+    return Ga * Cd / (1.0 + Cd * Gd)

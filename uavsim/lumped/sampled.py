@@ -71,7 +71,7 @@ from scipy.linalg import expm
 from uavsim.errors import UserError
 from uavsim.lumped.params import loop_family
 
-__all__ = ["SampledProcess", "lift", "loop_matrices", "lyapunov_sum", "sampled_ise", "step_ise_sampled",
+__all__ = ["SampledProcess", "lift", "loop_matrices", "open_loop", "lyapunov_sum", "sampled_ise", "step_ise_sampled",
            "delay_split"]
 
 #: doubling steps at most: 2^64 periods (a loop this close to marginal stability counts as unstable)
@@ -202,7 +202,7 @@ def _plant(family: str, B: int, p: dict[str, np.ndarray]) -> tuple[np.ndarray, n
 
 
 def lift(family: str, rate_hz: float, *, K, T_prop, T1, tau, T2=None, tau_in=None, att_kp=None, att_kd=None,
-         att_N=None) -> SampledProcess:
+         att_N=None, att_rate_hz=None) -> SampledProcess:
     """Lift B lumped processes over one control period (the part of the loop no controller changes).
 
     Parameters
@@ -217,6 +217,9 @@ def lift(family: str, rate_hz: float, *, K, T_prop, T1, tau, T2=None, tau_in=Non
     T2, tau_in, att_kp, att_kd, att_N : float or ndarray (B,), lateral only
         Drag time constant (s), attitude delay (s), the attitude PD for the unit-gain attitude
         process and its derivative filter (rad/s), sampled at ``rate_hz`` like the outer PD.
+    att_rate_hz : float or None, lateral only
+        The attitude PD's rate as the process states it (``uavsim.lumped.frequency``); it must be
+        ``rate_hz`` (the lifted loop samples both PDs at the same instants). None: ``rate_hz``.
 
     Returns
     -------
@@ -231,6 +234,8 @@ def lift(family: str, rate_hz: float, *, K, T_prop, T1, tau, T2=None, tau_in=Non
     vals = [K, T_prop, T1, tau] + ([T2, tau_in, att_kp, att_kd, att_N] if lateral else [])
     if lateral and any(v is None for v in vals):
         raise UserError("a lateral loop needs T2, tau_in, att_kp, att_kd and att_N")
+    if att_rate_hz is not None and np.any(np.asarray(att_rate_hz, dtype=np.float64) != float(rate_hz)):
+        raise UserError(f"the attitude PD runs at {att_rate_hz} Hz: the lifted loop samples it at {rate_hz:g} Hz")
     B, arrs = _broadcast(*vals)
     p = dict(zip(names, arrs, strict=True))
     if not all(np.all(np.isfinite(a)) for a in arrs):
@@ -275,7 +280,39 @@ def lift(family: str, rate_hz: float, *, K, T_prop, T1, tau, T2=None, tau_in=Non
     return SampledProcess(fam, float(rate_hz), E[:, :nx, :], W, d_in, X0, offset, **kw)
 
 
-def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _pairs(proc: SampledProcess, kp, kd, N) -> tuple[SampledProcess, np.ndarray, np.ndarray, np.ndarray]:
+    """Processes and PDs broadcast against each other: ``(proc, kp, kd, N)`` of one batch size."""
+    Bp = proc.B
+    B, (kp, kd, N) = _broadcast(kp, kd, N)
+    if Bp not in (1, B) and B != 1:
+        raise UserError(f"{Bp} processes and {B} controllers do not broadcast")
+    if Bp == 1 and B > 1:
+        proc = proc.take(np.zeros(B, dtype=np.int64))
+    B = proc.B
+    kp, kd, N = (np.broadcast_to(v, (B,)) for v in (kp, kd, N))
+    return proc, kp, kd, N
+
+
+def lifted_layout(proc: SampledProcess) -> dict[str, int]:
+    """Indices of the lifted state's blocks (``loop_matrices``) and its size ``n``."""
+    nx = proc.nx
+    lateral = proc.family == "lateral"
+    H = int(proc.d_in.max()) + 1
+    R = int(proc.d_out.max()) + 1 if lateral else 0
+    iE = nx + H
+    iM = iE + 4 if lateral else iE + 2
+    return {"H": H, "R": R, "iH": nx, "iE": iE, "iEa": iE + 2, "iM": iM, "n": iM + R}
+
+
+def _output_index(proc: SampledProcess) -> np.ndarray:
+    """Index of the measured output ``y_k`` in the lifted state, (B,)."""
+    if proc.family == "lateral":
+        return lifted_layout(proc)["iM"] + proc.d_out
+    return np.zeros(proc.B, dtype=np.int64)
+
+
+def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False,
+                  input_state: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The lifted closed loop of each (process, PD) pair: ``(M, Q, z0)``.
 
     Parameters
@@ -290,6 +327,9 @@ def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[
         The step semantics (module docstring): False, the PDs start at the step
         (``raw_0 = 0``); True, they ran at rest before it (``e_{-1} = 0``: the jump
         enters the derivatives).
+    input_state : bool
+        Append a state (last, held constant by nobody: its row of ``M`` is 0) that adds to the
+        outer PD's output: its column of ``M`` is the loop's input column (``open_loop``).
 
     Returns
     -------
@@ -303,26 +343,16 @@ def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[
     The state ``z`` is ``[X (nx) | v_{k-1} .. v_{k-H} (held commands) | e_{k-1}, d_{k-1}`` (outer PD)
     ``| e_att, d_att`` (lateral) ``| m_k .. m_{k-R}`` (lateral: ``x`` at ``t_k - f_out Ts``)``]``.
     """
-    Bp = proc.B
-    B, (kp, kd, N) = _broadcast(kp, kd, N)
-    if Bp not in (1, B) and B != 1:
-        raise UserError(f"{Bp} processes and {B} controllers do not broadcast")
-    if Bp == 1 and B > 1:
-        proc = proc.take(np.zeros(B, dtype=np.int64))
+    proc, kp, kd, N = _pairs(proc, kp, kd, N)
     B = proc.B
-    kp, kd, N = (np.broadcast_to(v, (B,)) for v in (kp, kd, N))
     if np.any(N <= 0):
         raise UserError("the derivative filter N must be > 0 rad/s")
     Ts = proc.Ts
     nx = proc.nx
     lateral = proc.family == "lateral"
-    H = int(proc.d_in.max()) + 1
-    R = int(proc.d_out.max()) + 1 if lateral else 0
-    iH = nx
-    iE = nx + H
-    iEa = iE + 2
-    iM = iEa + 2 if lateral else iE + 2
-    n = iM + R
+    lay = lifted_layout(proc)
+    H, R, iH, iE, iEa, iM = (lay[k] for k in ("H", "R", "iH", "iE", "iEa", "iM"))
+    n = lay["n"] + int(input_state)
     rows = np.arange(B)
 
     def unit(j) -> np.ndarray:
@@ -331,10 +361,12 @@ def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[
         return r
 
     a = (Ts * N / (1.0 + Ts * N))[:, None]
-    y = unit(iM + proc.d_out) if lateral else unit(0)
+    y = unit(_output_index(proc))
     e = -y
     d = (1.0 - a) * unit(iE + 1) + a * (e - unit(iE)) / Ts
     u = kp[:, None] * e + kd[:, None] * d
+    if input_state:
+        u = u + unit(n - 1)
     if lateral:
         kpa, kda, aa = (proc.att[:, i:i + 1] for i in range(3))
         ea = u - unit(0)
@@ -361,7 +393,7 @@ def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[
     z0 = np.zeros((B, n))
     z0[:, :nx] = proc.X0
     if lateral:
-        z0[:, iM:] = -1.0  # x = 0 before the step: 1 below its final value
+        z0[:, iM:iM + R] = -1.0  # x = 0 before the step: 1 below its final value
     if not kick:
         # e_{-1} = e_0 = 1 (nothing measured yet) and, lateral, e_att,{-1} = e_att,0 = u_0 = kp:
         # both raw differences start at 0
@@ -369,6 +401,24 @@ def loop_matrices(proc: SampledProcess, kp, kd, N, kick: bool = False) -> tuple[
         if lateral:
             z0[:, iEa] = kp
     return M, Q, z0
+
+
+def open_loop(proc: SampledProcess) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The lifted loops with the outer controller taken out: ``(A, b, c)``.
+
+    ``z_{k+1} = A z_k + b u_k`` and ``y_k = c z_k``, with ``u_k`` the outer command at the
+    sample ``t_k`` (held over the period; lateral: the attitude reference, which the attitude
+    PD inside reads at the same instants) and ``y_k`` the measured output (lateral:
+    ``x(t_k - tau)``). Exact at the samples for any input sequence: a relay at the control
+    rate (``uavsim.lumped.lateral.sampled_relay_cycle``) or the sampled frequency response
+    ``c (z I - A)^{-1} b``. Shapes (B, n, n), (B, n), (B, n); the outer PD's two states are
+    kept (and stay 0), so the layout is that of ``loop_matrices``.
+    """
+    M, _, _ = loop_matrices(proc, 0.0, 0.0, 1.0, input_state=True)
+    n = M.shape[1] - 1
+    c = np.zeros((proc.B, n))
+    c[np.arange(proc.B), _output_index(proc)] = 1.0
+    return M[:, :n, :n].copy(), M[:, :n, n].copy(), c
 
 
 def lyapunov_sum(M: np.ndarray, Q: np.ndarray, z0: np.ndarray, return_rho: bool = False):
@@ -439,10 +489,16 @@ def sampled_ise(proc: SampledProcess, kp, kd, N, return_stable: bool = False, ki
         ISE, output-units^2 s.
     stable : ndarray of bool (B,), only with ``return_stable``
     """
-    M, Qm, z0 = loop_matrices(proc, kp, kd, N, kick=kick)
-    J = lyapunov_sum(M, Qm, z0)
-    off = proc.offset if proc.B == J.size else np.broadcast_to(proc.offset, J.shape)
-    Q = np.where(np.isfinite(J), J + off, np.inf)
+    proc, kp, kd, N = _pairs(proc, kp, kd, N)
+    J = np.empty(proc.B)
+    # the state holds the delay lines of the longest delays in the batch: loops of like delays
+    # together (the doubling's cost grows as the cube of the state size)
+    size = proc.d_in + (proc.d_out if proc.d_out is not None else 0)
+    for n in np.unique(np.minimum(size, np.maximum(4, size) // 4 * 4)):
+        idx = np.flatnonzero(np.minimum(size, np.maximum(4, size) // 4 * 4) == n)
+        M, Qm, z0 = loop_matrices(proc.take(idx), kp[idx], kd[idx], N[idx], kick=kick)
+        J[idx] = lyapunov_sum(M, Qm, z0)
+    Q = np.where(np.isfinite(J), J + proc.offset, np.inf)
     return (Q, np.isfinite(Q)) if return_stable else Q
 
 

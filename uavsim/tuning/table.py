@@ -25,13 +25,14 @@ frequency against the class's own at its MRFT point,
 one-level miss than fitting the class's lags at the measured frequency).
 
 Lateral tables have one sub-table per attitude class, and the attitude loop
-under each is closed by that attitude class's table PD at the same rate (the
-product tunes attitude before lateral, and the rule's attitude PD is unstable
-at 200 Hz on the fastest attitude classes). The lateral classes keep their
-``(T2, tau_out)``; what they are a model of changes with the attitude PD, so a
-sub-table stores that PD (``attitude``) and its classes' DF MRFT frequency
-``omega`` at the sub-grid's beta under it: lateral data and identification must
-close the attitude loop with it too.
+under each is closed by that attitude class's table PD sampled at the same rate
+(the product tunes attitude before lateral, and the rule's attitude PD is
+unstable at 200 Hz on the fastest attitude classes). The 200 Hz lateral grid is
+designed over exactly that loop (``uavsim.tuning.lateral_grid``), its neighbours
+given by the grid (``Grid.neighbours``); a sub-table stores the attitude PD
+(``attitude``, with the ``rate_hz`` it is sampled at) and its classes' DF MRFT
+frequency ``omega`` at the sub-grid's beta in the sampled loop: lateral data
+and identification must close the attitude loop with it too.
 
 Where tables live: the 200 Hz tables are package data
 (``uavsim/tuning/grids/optimal-<family>-200hz.json``); a table at another rate is
@@ -65,6 +66,7 @@ from uavsim.lumped.frequency import freq_response_batch
 from uavsim.lumped.params import loop_family
 from uavsim.tuning.grid import (
     Grid,
+    attitude_of,
     load_grid,
     neighbour_pairs,
     read_hashed_json,
@@ -316,7 +318,7 @@ def neighbourhoods(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     return pr[:, 0], pr[:, 1]
 
 
-def _build_flat(fam: str, rate_hz: float, grid: Grid, cparams: dict[str, Any], built: dict[str, Any],
+def build_flat_table(fam: str, rate_hz: float, grid: Grid, cparams: dict[str, Any], built: dict[str, Any],
                 attitude: dict | None = None, scaling: str = "mrft") -> OptimalTable:
     rule = grid.rule
     g = optimal_gains(fam, rate_hz, rule=rule, K=1.0, **cparams)
@@ -344,13 +346,11 @@ def _build_flat(fam: str, rate_hz: float, grid: Grid, cparams: dict[str, Any], b
 def lateral_attitude(att_table: OptimalTable, att_grid: Grid, a: int) -> dict[str, float]:
     """Attitude class ``a`` with the table's attitude PD (unit gain) that closes the lateral loop over it.
 
-    Keys as the lateral grids' ``attitude`` (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``,
-    ``att_filter_hz``, ``att_class``), plus ``rate_hz``.
+    Keys as the lateral grids' ``attitude`` (``uavsim.tuning.grid.attitude_of``: ``T_prop``, ``T1``,
+    ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``, ``att_class``, and ``rate_hz``, the rate the PD
+    is sampled at).
     """
-    return {"T_prop": float(att_grid.params["T_prop"][a]), "T1": float(att_grid.params["T1"][a]),
-            "tau_in": float(att_grid.params["tau"][a]), "att_kp": float(att_table.kp[a]),
-            "att_kd": float(att_table.kd[a]), "att_filter_hz": float(att_table.derivative_filter_hz[a]),
-            "att_class": int(a), "rate_hz": float(att_table.rate_hz)}
+    return attitude_of(att_grid, a, att_table)
 
 
 def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | None = None, log=None) -> OptimalTable:
@@ -369,11 +369,15 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
                              "gain_estimate": "K_hat = |G(j w)| / |G_class(j Omega_class)| (mrft scaling)",
                              "robust": "least expected J over the class and its grid neighbours, equal weights"}
     if fam != "lateral":
-        t = _build_flat(fam, rate_hz, grid, _inner_params(grid), built)
+        t = build_flat_table(fam, rate_hz, grid, _inner_params(grid), built)
         built["build_time_s"] = round(time.time() - t0, 1)
         return t
     att_grid = load_grid("attitude")
     att_table = load_table("attitude", rate_hz, grid=att_grid, log=log)
+    design = grid.built.get("attitude_table_hash")
+    if design is not None and float(grid.built.get("rate_hz", math.nan)) == float(rate_hz) and design != att_table.hash:
+        raise UserError(f"the lateral grid was designed over another attitude table (hash {design[:12]}, table "
+                        f"{att_table.hash[:12]}): rebuild it with `uavsim grid build --loop lateral`")
     built.update(attitude_table_hash=att_table.hash, attitude_grid_hash=att_grid.hash,
                  attitude_loop="each attitude class closed by its attitude table PD at the same rate")
     subs = []
@@ -381,9 +385,9 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
         att = lateral_attitude(att_table, att_grid, a)
         cparams = {"T_prop": att["T_prop"], "T1": att["T1"], "tau": np.asarray(sg.params["tau"], float),
                    "T2": np.asarray(sg.params["T2"], float), "tau_in": att["tau_in"], "att_kp": att["att_kp"],
-                   "att_kd": att["att_kd"], "att_N": 2.0 * math.pi * att["att_filter_hz"]}
+                   "att_kd": att["att_kd"], "att_N": 2.0 * math.pi * att["att_filter_hz"], "att_rate_hz": att["rate_hz"]}
         ts = time.time()
-        subs.append(_build_flat("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att))
+        subs.append(build_flat_table("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att))
         subs[-1].grid_hash = grid.hash
         subs[-1].built["build_time_s"] = round(time.time() - ts, 1)
         if log:

@@ -33,7 +33,14 @@ import numpy as np
 
 from uavsim.lumped.lateral import DERIVATIVE_FILTER_RATIO
 from uavsim.lumped.params import loop_family
-from uavsim.tuning.grid import _AXES, TARGETS, _box_sample, _log_box, _proc_params, neighbour_pairs
+from uavsim.tuning.grid import (
+    BOX_AXES,
+    TARGETS,
+    box_sample,
+    class_process_params,
+    log_box,
+    neighbour_pairs,
+)
 from uavsim.tuning.jmatrix import J_MAX, symmetrize
 from uavsim.tuning.optimal import optimal_gains
 from uavsim.tuning.sensitivity import controller_ise, j_of_points
@@ -82,15 +89,15 @@ def _points(fam: str, groups: list[tuple], n: int, seed: int) -> dict[str, np.nd
     All groups are evaluated in a few batched calls. Returns arrays (n * len(groups),).
     """
     rate = groups[0][1].rate_hz
-    lo, hi = _log_box(fam)
+    lo, hi = log_box(fam)
     X, pp, cls, near, rules = [], [], [], [], []
     c0 = 0
     for k, (g, t, att) in enumerate(groups):
-        x = _box_sample(fam, np.random.default_rng(seed + k), n)
-        xc = np.column_stack([np.asarray(g.params[a], float) for a in _AXES[fam]])
+        x = box_sample(fam, np.random.default_rng(seed + k), n)
+        xc = np.column_stack([np.asarray(g.params[a], float) for a in BOX_AXES[fam]])
         X.append(x)
-        pp.append(_proc_params(fam, x, att))
-        cls.append(_proc_params(fam, xc, att))
+        pp.append(class_process_params(fam, x, att))
+        cls.append(class_process_params(fam, xc, att))
         zp, zc = (np.log(x) - lo) / (hi - lo), (np.log(xc) - lo) / (hi - lo)
         near.append(c0 + np.argmin(((zp[:, None, :] - zc[None]) ** 2).sum(-1), axis=1))
         rules.append(g.rule)
