@@ -66,7 +66,7 @@ def test_lateral_grid_artefact():
     g = load_grid("lateral")
     att, att_table = load_grid("attitude"), load_table("attitude")
     assert len(g.sub) == att.n and g.built["attitude_hash"] == att.hash
-    assert g.built["attitude_table_hash"] == att_table.hash and g.built["rate_hz"] == 200.0
+    assert g.built["attitude_pd_hash"] == att_table.pd_hash and g.built["rate_hz"] == 200.0
     assert g.built["lateral_rules"] == [[s.beta, s.pm_deg, s.gain_scale] for s in g.sub]
     assert 600 <= sum(s.n for s in g.sub) <= 900
     for a in (0, att.n // 2, att.n - 1):

@@ -62,9 +62,11 @@ def _neighbour_J(grid, J):
 def test_inner_robust_answers_hold_their_neighbours(loop):
     g, t = load_grid(loop), load_table(loop)
     own = np.diag(t.J_robust)
-    assert np.all(own >= 1.0) and own.max() < 1.05 and np.median(own) < 1.01
+    # with identification's gain estimate (fitted at the cycle's frequency): the class itself pays at
+    # most 8% (altitude; median 0.7%) and no neighbour more than 21%
+    assert np.all(own >= 1.0) and own.max() < 1.10 and np.median(own) < 1.01
     nb = _neighbour_J(g, t.J_robust)
-    assert nb.max() < 1.15  # the optima's own neighbour J reaches 2.3 (altitude) or instability (attitude)
+    assert nb.max() < 1.25  # the optima's own neighbour J reaches instability
     assert _neighbour_J(g, t.J).max() > nb.max()
     k = t.gains(7, K=2.0)
     assert k["kp"] == pytest.approx(t.robust_kp[7] / 2.0) and t.gains(7, robust=False)["kp"] == t.kp[7]

@@ -42,7 +42,7 @@ def test_packaged_lateral_table_closes_attitude_with_its_table():
         assert s.n == g.lateral(a).n and s.attitude == lateral_attitude(att, load_grid("attitude"), a)
         assert np.allclose(np.diag(s.J), 1.0, atol=1e-9)
         assert s.beta == g.lateral(a).beta and s.gain_scale == g.lateral(a).gain_scale
-    assert t.built["attitude_table_hash"] == att.hash
+    assert t.built["attitude_pd_hash"] == att.pd_hash == g.built["attitude_pd_hash"]
 
 
 def test_rebuild_reproduces_the_packaged_attitude_table():
@@ -59,8 +59,9 @@ def test_table_J_entry_and_identical_classes():
     from uavsim.lumped.frequency import freq_response_batch
 
     Gj = abs(freq_response_batch("altitude", np.array([[t.omega[j]]]), 1.0, pj.T_prop, pj.T1, pj.tau)[0, 0])
-    Gi = abs(freq_response_batch("altitude", np.array([[t.omega[i]]]), 1.0, pi.T_prop, pi.T1, pi.tau)[0, 0])
-    K_hat = Gj / Gi  # the "mrft" gain estimate of class i's model from class j's cycle
+    Gi = abs(freq_response_batch("altitude", np.array([[t.omega[j]]]), 1.0, pi.T_prop, pi.T1, pi.tau)[0, 0])
+    K_hat = Gj / Gi  # class i's model put on class j's cycle at its frequency (the "response" estimate)
+    assert t.scaling == "response"
     q = sampled_ise(lift("altitude", 200.0, K=1.0, T_prop=pj.T_prop, T1=pj.T1, tau=pj.tau), t.kp[i] / K_hat,
                     t.kd[i] / K_hat, t.N[i])[0]
     assert t.J[i, j] == pytest.approx(max(q / t.ise[j], 1.0), rel=1e-5)
@@ -166,8 +167,8 @@ def test_lateral_table_covers_the_fast_corner():
 
 def test_lateral_table_refuses_another_attitude_table():
     g = load_grid("lateral")
-    g.built = {**g.built, "attitude_table_hash": "0" * 64}
-    with pytest.raises(UserError, match="designed over another attitude table"):
+    g.built = {**g.built, "attitude_pd_hash": "0" * 64}
+    with pytest.raises(UserError, match="designed over other attitude PDs"):
         build_table("lateral", grid=g)
 
 

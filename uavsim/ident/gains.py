@@ -2,11 +2,12 @@
 
 The real-time answer (``table_gains``): the grid's table at the control rate
 (``uavsim.tuning.table``, carried in the bundle) holds each class's PD for
-``K = 1``; the process gain is estimated as the table's J assumes it,
-``K_hat = |G(j w)| / |G_class(j Omega_class)|`` (``gain_estimate``: the measured
-response magnitude, hold removed, over the class's own at its MRFT point), and
+``K = 1``; the process gain is estimated as the table's J assumes it, the
+measured response magnitude (hold removed) over the class's own at the measured
+frequency, ``K_hat = |G(j w)| / |G_class(j w)|`` (``fitted_model``'s ``K``), and
 the answer is the class's robust PD over ``K_hat`` with the class's derivative
-filter. Nothing is optimized at identification time: a matrix lookup and a
+filter. ``gain_estimate`` (against the class's magnitude at its nominal MRFT
+point) is kept for comparison. Nothing is optimized at identification time: a matrix lookup and a
 division.
 
 The optimum of the fitted model (``model_optimum``, ~10-20 ms): the class's
@@ -35,7 +36,7 @@ __all__ = ["gain_estimate", "table_gains", "fitted_model", "model_optimum", "mea
 
 
 def gain_estimate(bundle: ModelBundle, cls, G) -> np.ndarray:
-    """``K_hat = |G(j w)| / table_gain_at_omega[cls]``: the process gain the table's J assumes, (m,).
+    """``K_hat = |G(j w)| / table_gain_at_omega[cls]``: the estimate at the class's nominal MRFT point, (m,).
 
     ``G``: the measured ``G(j w)`` (output units per command unit, hold removed:
     ``uavsim.data.preprocess.process_response``) at the cycle's frequency.

@@ -159,14 +159,14 @@ class Grid:
                    neighbours=d.get("neighbours"), gain_scale=float(d.get("gain_scale", 1.0)), **a, **common)
 
 
-def _content_hash(d: dict[str, Any]) -> str:
+def content_hash(d: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
 def write_hashed_json(d: dict[str, Any], path: Path) -> str:
     """Write ``d`` with its content hash as JSON atomically (temp file, then ``os.replace``); return the hash."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    d = {**d, "hash": _content_hash(d)}
+    d = {**d, "hash": content_hash(d)}
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     with os.fdopen(fd, "w") as f:
         json.dump(d, f, separators=(",", ":"))
@@ -184,7 +184,7 @@ def read_hashed_json(path: Path, what: str, problem, parse) -> tuple[Any, str]:
     try:
         d = json.loads(path.read_text())
         h = d.pop("hash", "")
-        if h and h != _content_hash(d):
+        if h and h != content_hash(d):
             raise UserError(f"{what} file {path} is corrupt (hash mismatch)")
         msg = problem(d)
         if msg:

@@ -316,7 +316,7 @@ def build_lateral(seed: int = 0, rate_hz: float = DEFAULT_RATE_HZ, log=None, att
     rule = TuningRule()
     c1, c3 = rule.constants
     built = {"date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "tool_version": tool_version,
-             "seed": seed, "rate_hz": float(rate_hz), "attitude_hash": att_grid.hash, "attitude_table_hash": att_table.hash,
+             "seed": seed, "rate_hz": float(rate_hz), "attitude_hash": att_grid.hash, "attitude_pd_hash": att_table.pd_hash,
              "tau_obs": kw.get("tau_obs", TAU_OBS), "cover_J": kw.get("cover_J", COVER_J),
              "neighbour_J": kw.get("neighbour_J", NEIGHBOUR_J), "n_samples": kw.get("n_samples", N_SAMPLES),
              "method": "per attitude class over its attitude table PD sampled at the rate: beta the lowest NP-MRFT "
