@@ -5,14 +5,14 @@ A recipe (``training/*.toml``) names the dataset written by ``uavsim generate``
 optimizer. Training follows the authors' code (NOTES.md section 2): Adam, lr
 multiplied by ``lr_decay`` every ``lr_step_epochs``, a J-weighted loss
 (``uavsim.learning.loss``). A seeded ``val_fraction`` of the set is held out for
-early stopping on the validation **mean J** (the closed-loop cost of the
-answered class for the true one), not on accuracy: two wrong classes are not
-equally wrong. The answered class is the one identification answers: least
-expected J under the network's softmax (``uavsim.learning.decision``, Bayes),
-unless the most likely class (argmax) has the lower mean J on the validation set
-(a belief too poor to weigh costs with); both are reported (``*_bayes``,
-``*_argmax``). The belief's temperature is fitted to the validation set each
-epoch; the exported ``weights.npz`` carries the set's ``J`` and the best epoch's
+early stopping on the validation **mean log J** (the closed-loop cost of the
+answered class for the true one, in the loss's units), not on accuracy: two
+wrong classes are not equally wrong. The answered class is the one
+identification answers: least expected log J under the network's softmax
+(``uavsim.learning.decision``, Bayes), unless the most likely class (argmax) has
+the lower mean log J on the validation set (a belief too poor to weigh costs
+with); both are reported (``*_bayes``, ``*_argmax``). The belief's temperature
+is chosen on the validation set each epoch; the exported ``weights.npz`` carries the set's ``J`` and the best epoch's
 temperature, ``meta.json`` its decision.
 
 Every epoch writes ``OUT/checkpoint.pt`` (model, optimizer, schedule, RNG
@@ -114,9 +114,9 @@ class TrainRecipe:
     val_fraction : float
         Fraction of the set held out for early stopping (stratified by class).
     patience : int
-        Epochs without a validation mean-J improvement before stopping.
+        Epochs without a validation mean-log-J improvement before stopping.
     min_delta : float
-        Improvement (in mean J) that counts.
+        Improvement (in mean log J) that counts.
     max_minutes : float
         Wall-clock budget (0: none); training stops after the epoch that crosses it.
     loss_kind : str
@@ -496,7 +496,7 @@ def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainDat
         decision = "bayes" if cost(pred["bayes"]) <= cost(pred["argmax"]) else "argmax"
     return {**m[decision], **gain_metrics(pred[decision], data, idx),
             **{f"{k}_{d}": m[d][k] for d in pred for k in ("top1", "mean_J", "p95_J")},
-            **{f"mean_log_J_{d}": cost(c) for d, c in pred.items()},
+            **{f"mean_log_J_{d}": cost(c) for d, c in pred.items()}, "mean_log_J": cost(pred[decision]),
             "temperature": T, "decision": decision}
 
 
@@ -539,7 +539,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
 
     history: list[dict[str, float]] = []
     start_epoch, elapsed = 0, 0.0
-    best = {"mean_J": math.inf, "epoch": -1}
+    best = {"mean_log_J": math.inf, "epoch": -1}
     best_state: dict[str, torch.Tensor] | None = None
     ck_path = out / CHECKPOINT
     if resume and ck_path.is_file():
@@ -555,7 +555,7 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         best_state = ck["best_state"]
         start_epoch = ck["epoch"] + 1
         if not quiet:
-            print(f"resuming {recipe.name} at epoch {start_epoch} (best mean J {best['mean_J']:.4f})", file=sys.stderr)
+            print(f"resuming {recipe.name} at epoch {start_epoch} (best mean log J {best.get('mean_log_J', math.nan):.4f})", file=sys.stderr)
     elif resume and not quiet:
         print(f"no checkpoint at {ck_path}: starting from scratch", file=sys.stderr)
 
@@ -587,8 +587,10 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
         rec = {"epoch": epoch, "loss": total / nb, "lr": opt.param_groups[0]["lr"], **{f"val_{k}": v for k, v in vm.items()},
                "elapsed_s": time.perf_counter() - t0}
         history.append(rec)
-        if vm["mean_J"] < best["mean_J"] - recipe.min_delta:
-            best = {"mean_J": vm["mean_J"], "epoch": epoch, **{f"val_{k}": v for k, v in vm.items()}}
+        # the best epoch by mean log J (the loss's cost): mean J is decided by the one or two
+        # inputs of a thousand whose answer is unstable (J clipped to 1e3)
+        if vm["mean_log_J"] < best.get("mean_log_J", math.inf) - recipe.min_delta:
+            best = {"mean_log_J": vm["mean_log_J"], "epoch": epoch, **{f"val_{k}": v for k, v in vm.items()}}
             best_state = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
             stale = 0
         else:

@@ -38,7 +38,7 @@ class EarlyStopping(Table):
 
     val_fraction: Fraction | None = Field(default=None, description="default 0.15")
     patience: PosInt | None = Field(default=None, description="epochs without improvement, default 10")
-    min_delta: NonNegative | None = Field(default=None, description="mean-J improvement that counts, default 0")
+    min_delta: NonNegative | None = Field(default=None, description="mean-log-J improvement that counts, default 0")
     max_minutes: NonNegative | None = Field(default=None, description="wall-clock budget (0: none), default 0")
 
 

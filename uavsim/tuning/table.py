@@ -212,7 +212,10 @@ class OptimalTable:
                 "derivative_filter_hz": float(self.derivative_filter_hz[cls])}
 
     def gain_estimate(self, cls: int, response_magnitude: float) -> float:
-        """``K_hat = |G(j w)| / gain_at_omega[cls]``: the process gain the table's J assumes.
+        """``K_hat = |G(j w)| / gain_at_omega[cls]``: the estimate at the class's nominal MRFT point.
+
+        Tables with ``scaling = "response"`` assume the gain fitted at the cycle's frequency
+        instead (``uavsim.ident``); this one is kept for comparison (``uavsim evaluate``).
 
         ``response_magnitude``: the measured ``|G(j w)|`` at the cycle's frequency (output units
         per command unit, the hold removed: ``uavsim.data.preprocess.process_response``).
