@@ -4,7 +4,9 @@
   session format's relay semantics (both readings).
 - :mod:`~uavsim.control.pd`: the step test's PD with a filtered derivative.
 - :mod:`~uavsim.control.runs`: the controller of a session run, from its
-  ``RunSpec`` (one factory for simulation, replay and the gap workflow).
+  ``RunSpec`` (one factory for replay and the testbed's flights; the gap
+  workflow's batch of runs of several kinds, ``uavsim.gap.simulate.SessionController``,
+  builds the same controllers per kind over its batch).
 - :mod:`~uavsim.control.baselines`: MRFT with inhibition and the two-relay
   test, the NP-MRFT study's baselines.
 

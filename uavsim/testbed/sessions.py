@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.control.pd import PD
-from uavsim.control.relay import NPMRFT
+from uavsim.control.runs import run_controller
 from uavsim.errors import UserError
 from uavsim.formats.session import (
     NP_MRFT_RUN,
@@ -301,11 +301,10 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
     for spec in specs:
         fl.fly(hold(), BETWEEN_RUNS_S * time_scale)
         K_by_run[spec.file] = lumped_equivalent(v, loop, soc=fl.battery.soc).K
+        ctrl = run_controller(spec, RATE_HZ)
         if spec.kind == STEP_RUN:
-            ctrl, dur = PD(spec.kp, spec.kd, spec.derivative_filter_hz, RATE_HZ, 1), step_s
-            ref = (lambda st: (lambda t: st if t >= STEP_TIME_S else 0.0))(spec.step)
+            dur, ref = step_s, (lambda st: (lambda t: st if t >= STEP_TIME_S else 0.0))(spec.step)
         else:
-            ctrl = NPMRFT(spec.beta, spec.h, spec.tau_obs, spec.a_n, RATE_HZ, 1)
             dur, ref = relay_s, None
         rec = fl.fly(ctrl, dur, ref)
         T = int(round(dur * RATE_HZ))

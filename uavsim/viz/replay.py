@@ -46,9 +46,10 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import MRFT, NPMRFT, READING
+from uavsim.control.relay import NPMRFT, READING
+from uavsim.control.runs import run_controller
 from uavsim.errors import UserError
-from uavsim.formats.session import MRFT_RUN, RELAY_KINDS, Run, Session
+from uavsim.formats.session import RELAY_KINDS, Run, RunSpec, Session
 from uavsim.viz.sources import (
     ReplayRun,
     dataset_runs,
@@ -111,7 +112,7 @@ def make_relay(run: Run, rate_hz: float, reading: int = READING) -> NPMRFT:
     s = run.spec
     if s.kind not in RELAY_KINDS:
         raise UserError(f"{run.spec.file}: run kind {s.kind!r} is not a relay run")
-    return _relay(s.kind, _params(run, reading), rate_hz)
+    return run_controller(s, rate_hz, reading=reading)
 
 
 def _params(run: Run, reading: int) -> dict[str, Any]:
@@ -120,11 +121,9 @@ def _params(run: Run, reading: int) -> dict[str, Any]:
 
 
 def _relay(kind: str, p: dict[str, Any], rate_hz: float) -> NPMRFT:
-    reading = int(p.get("reading", READING))
-    if kind == MRFT_RUN:
-        return MRFT(p["beta"], p["h"], rate_hz, 1, bias=p.get("bias") or 0.0, reading=reading)
-    return NPMRFT(p["beta"], p["h"], p["tau_obs"] or 0.0, p["a_n"] or 0.0, rate_hz, 1, bias=p.get("bias") or 0.0,
-                  reading=reading)
+    spec = RunSpec(file="(replay)", kind=kind, beta=p["beta"], h=p["h"], tau_obs=p.get("tau_obs"), a_n=p.get("a_n"),
+                   bias=p.get("bias") or 0.0)
+    return run_controller(spec, rate_hz, reading=int(p.get("reading", READING)))
 
 
 def recompute_relay_e(e: np.ndarray, kind: str, params: dict[str, Any], rate_hz: float) -> RelayReplay:
