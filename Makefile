@@ -51,7 +51,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -q -m "slow or not slow"
+	$(BIN)/python -m pytest -q -m "slow or not slow" --timeout 0
 
 lint: $(STAMP)
 	$(BIN)/ruff check uavsim tests docs
