@@ -16,7 +16,7 @@ from uavsim.formats.session import EffectSpec, ModelSpec, Run, RunData, RunSpec,
 from uavsim.gap import iterate
 from uavsim.gap.residual import residual_character, run_residual
 from uavsim.gap.simulate import SimRun
-from uavsim.gap.workflow import GapResult
+from uavsim.gap.workflow import GapResult, UnflownRun
 
 RATE = 200.0
 
@@ -228,7 +228,7 @@ def test_run_the_base_model_cannot_fly_is_set_aside(monkeypatch):
     def first_refuses(session, **kw):
         seen.append(len(session.runs))
         if len(seen) == 1:
-            raise UserError("run 1 (r1.csv): the model's step response diverges; check the model")
+            raise UnflownRun(1, "run 1 (r1.csv): the model's step response diverges; check the model")
         return fake(session, **kw)
 
     monkeypatch.setattr(iterate, "run_gap", first_refuses)
@@ -250,7 +250,7 @@ def test_search_stops_when_the_found_effect_makes_a_run_unflyable(monkeypatch):
     def second_refuses(session, **kw):
         seen.append(1)
         if len(seen) == 2:
-            raise UserError("run 0 (r0.csv): the model's step response diverges; check the model")
+            raise UnflownRun(0, "run 0 (r0.csv): the model's step response diverges; check the model")
         return fake(session, **kw)
 
     monkeypatch.setattr(iterate, "run_gap", second_refuses)

@@ -29,7 +29,6 @@
 from __future__ import annotations
 
 import dataclasses
-import re
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -47,7 +46,7 @@ from uavsim.formats.session import (
 )
 from uavsim.gap.features import run_features
 from uavsim.gap.residual import residual_character
-from uavsim.gap.workflow import CANDIDATES, GapResult, format_table, run_gap
+from uavsim.gap.workflow import CANDIDATES, GapResult, UnflownRun, format_table, run_gap
 
 __all__ = [
     "FlowResult",
@@ -71,9 +70,6 @@ NAME_SHARE = 0.6
 #: 0-23 (docs/results/gap-workflow.md): 10% above the largest clean gap seen there
 #: (attitude 6.39, altitude 13.55; identified base models)
 NONE_GAP = {"altitude": 15.0, "attitude": 7.0}
-_UNFLOWN = re.compile(
-    r"run (\d+) \([^)]*\): the model('s step response diverges| does not even reproduce)"
-)
 #: identified tau beyond the class's tau, as a share of the cycle's period, above which a
 #: linear effect is reported as absorbed by the identified model; set above the largest
 #: share on the clean sessions of development seeds 0-23 (0.025)
@@ -321,15 +317,14 @@ def analyse(
                 candidates=cands,
                 log=log,
             )
-        except UserError as exc:
+        except UnflownRun as exc:
             # a run the base model cannot fly at all (diverges, no cycle) is set aside, said, and the rest used
-            m = _UNFLOWN.match(str(exc))
-            if m and steps:  # the model with the effects found so far cannot fly a run: stop there
+            if steps:  # the model with the effects found so far cannot fly a run: stop there
                 log(f"search {len(steps) + 1} not run: {exc}")
                 break
-            if not m or len(cur.runs) < 2:
+            if len(cur.runs) < 2:
                 raise
-            i = int(m.group(1))
+            i = exc.run
             log(f"run {cur.runs[i].spec.file} dropped: {exc}")
             dropped.append(f"{cur.runs[i].spec.file} (the base model cannot fly it)")
             cur = dataclasses.replace(cur, runs=[r for k, r in enumerate(cur.runs) if k != i])

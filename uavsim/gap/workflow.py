@@ -51,7 +51,7 @@ from uavsim.gap.features import compare, gap_value, noise_scales, run_features, 
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
-__all__ = ["CANDIDATES", "GapResult", "run_gap", "format_table", "read_model_file", "candidate_grid"]
+__all__ = ["CANDIDATES", "GapResult", "UnflownRun", "run_gap", "format_table", "read_model_file", "candidate_grid"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -67,6 +67,14 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
+
+
+class UnflownRun(UserError):
+    """The base model cannot fly run ``run`` (no oscillation, a diverging step): the gap of that run is undefined."""
+
+    def __init__(self, run: int, message: str):
+        super().__init__(message)
+        self.run = run
 
 
 @dataclass
@@ -356,13 +364,13 @@ def run_gap(
     fb = [ev.features(s) for s in before]
     for i, (r, f) in enumerate(zip(session.runs, fb[0], strict=True)):
         if f is None and r.spec.kind != STEP_RUN:
-            raise UserError(
-                f"run {i} ({r.spec.file}): the model does not even reproduce the oscillation "
+            raise UnflownRun(
+                i, f"run {i} ({r.spec.file}): the model does not even reproduce the oscillation "
                 f"(measured period {math.exp(ev.meas[i]['period']):.3g} s; the simulated run "
                 "does not oscillate or diverges): check K, T_prop, T1, tau before looking for effects"
             )
         if f is None:
-            raise UserError(f"run {i} ({r.spec.file}): the model's step response diverges; check the model")
+            raise UnflownRun(i, f"run {i} ({r.spec.file}): the model's step response diverges; check the model")
     ev.scales = noise_scales(fb)
     gaps_before = [ev.gap(f) for f in fb]
     gap_before = float(np.mean(gaps_before))
