@@ -2,7 +2,7 @@
 
 The session needs an np-mrft (or mrft) run at the beta the network was trained
 for. The JSON (``--json``) is that of the session format: ``loop``, ``class``
-(of least expected J under the network's softmax: ``--decision``), ``params`` (the class's lags with K and tau fitted to the
+(of least expected log J under the network's softmax: ``--decision``), ``params`` (the class's lags with K and tau fitted to the
 measured point), ``gains`` (kp, kd, derivative_filter_hz for the identified K)
 and ``gains_source``: ``table`` (the grid's robust PD of the class at the control
 rate over the identified K, the real-time answer) or ``optimum`` (the fitted
@@ -42,7 +42,7 @@ def register(subparsers) -> None:
                    help="also optimize the identified model's PD at the control rate (~10-20 ms) and answer it "
                         "when the model is off the grid (auto) or always (default never: the table's answer)")
     p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
-                   help="class decision: least expected J over the network's cost matrix (bayes) or the most likely "
+                   help="class decision: least expected log J over the network's cost matrix (bayes) or the most likely "
                         "class (argmax); default: the bundle's (the trainer's choice on validation)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")

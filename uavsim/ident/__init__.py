@@ -8,7 +8,7 @@ Downstream of ``uavsim.data`` (the shared preprocessing) and ``uavsim.learning``
   attitude loop); where model folders are found.
 - ``cycle``: the cycle identification uses, and the checks that refuse what is not one.
 - ``response``: the measured fundamental response and the models fitted to it.
-- ``select``: the class: least expected J under the network's softmax over the bundle's
+- ``select``: the class: least expected log J under the network's softmax over the bundle's
   cost matrix (or the most likely class, ``decision="argmax"``).
 - ``gains``: the table's PD for the identified gain; the fitted model's optimum.
 - ``session``: the session-level API (``identify_session``, ``write_model``).

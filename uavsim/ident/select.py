@@ -1,16 +1,16 @@
-"""Class selection: the answer of least expected J under the network's belief.
+"""Class selection: the answer of least expected log J under the network's belief.
 
 The network is trained with a cost-sensitive loss over the table's robust
 answers, yet its most likely class is not the answer of least cost: many classes
 are near-equivalent for a true class while some (answer, truth) pairs are
-unstable. The class answered is the minimum-expected-cost (Bayes) decision over
-the bundle's cost matrix ``J`` (``ModelBundle.cost``: the dataset's, rows class
+unstable. The class answered is the minimum-expected-cost (Bayes) decision, the
+cost being log J over the bundle's cost matrix ``J`` (``ModelBundle.cost``: the dataset's, rows class
 answered, columns true class) with the network's softmax at the bundle's
 temperature as the belief
 (``uavsim.learning.decision``: the same decision the trainer picks its best
 epoch on). ``decision="argmax"`` (the most likely class) is kept for comparison;
 it is also what a bundle exported without ``J`` answers, and what the trainer
-exports as the decision where it had the lower mean J on the validation set
+exports as the decision where it had the lower mean log J on the validation set
 (``ModelBundle.decision``).
 
     from uavsim.ident.select import choose_class, decide_class

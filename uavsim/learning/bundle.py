@@ -3,7 +3,7 @@
 Written by the trainer beside the network (``uavsim.learning.export``), read by
 ``uavsim.ident.bundle``: the control rate of the class table's PDs, the grid's
 rule, the preprocessing settings, and for a lateral network the attitude loop
-its sub-grid closes, and the class decision (least expected J over the cost matrix
+its sub-grid closes, and the class decision (least expected log J over the cost matrix
 ``J`` that ``weights.npz`` carries: ``uavsim.learning.decision``). The class table itself (with the grid's table of PDs at
 the control rate, ``table_*`` columns) is the dataset's, copied as ``classes``.
 

@@ -43,8 +43,8 @@ import numpy as np
 
 from uavsim.errors import UserError
 
-__all__ = ["DECISIONS", "COST_CLIP", "TEMPERATURE_RANGE", "Decision", "softmax", "expected_cost", "fit_temperature",
-           "decide"]
+__all__ = ["DECISIONS", "COST_CLIP", "TEMPERATURE_RANGE", "Decision", "softmax", "log_cost", "expected_cost",
+           "fit_temperature", "decide"]
 
 #: class decisions: least expected J (``bayes``), most likely class (``argmax``)
 DECISIONS = ("bayes", "argmax")
@@ -84,12 +84,16 @@ def softmax(activations: np.ndarray, temperature: float = 1.0) -> np.ndarray:
     return e / e.sum(axis=1, keepdims=True)
 
 
-def _clipped(J: np.ndarray, n: int) -> np.ndarray:
+def log_cost(J: np.ndarray, n: int | None = None) -> np.ndarray:
+    """``log`` of ``J`` clipped to ``COST_CLIP``, (n, n): the cost the decision weighs.
+
+    An unstable pair (inf) or one not computed (nan) is the clip's worst cost. ``n``: the
+    network's class count, checked against ``J``'s shape.
+    """
     J = np.asarray(J, dtype=np.float64)
-    if J.shape != (n, n):
+    if J.ndim != 2 or J.shape[0] != J.shape[1] or (n is not None and J.shape[0] != n):
         raise UserError(f"cost matrix J has shape {J.shape}, the network has {n} classes")
-    # an unstable pair (inf) or one not computed (nan) is the clip's worst cost
-    return np.clip(np.nan_to_num(J, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP)
+    return np.log(np.clip(np.nan_to_num(J, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP))
 
 
 def expected_cost(p: np.ndarray, J: np.ndarray) -> np.ndarray:
@@ -98,7 +102,7 @@ def expected_cost(p: np.ndarray, J: np.ndarray) -> np.ndarray:
     (m, n) from ``p`` (m, n) and ``J`` (n, n).
     """
     p = np.atleast_2d(np.asarray(p, dtype=np.float64))
-    return p @ np.log(_clipped(J, p.shape[1])).T
+    return p @ log_cost(J, p.shape[1]).T
 
 
 def fit_temperature(activations: np.ndarray, labels: np.ndarray) -> float:

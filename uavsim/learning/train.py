@@ -48,7 +48,7 @@ import torch
 
 from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
-from uavsim.learning.decision import decide, fit_temperature
+from uavsim.learning.decision import decide, fit_temperature, log_cost
 from uavsim.learning.export import export_model
 from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
@@ -336,17 +336,15 @@ def gain_metrics(pred: np.ndarray, data: TrainData, idx: np.ndarray) -> dict[str
     against the true class's over the true ``K``. Empty when the set has no response or no table
     (older files) or is lateral.
     """
-    from uavsim.data.preprocess import process_response
-    from uavsim.lumped.frequency import freq_response_batch
+    from uavsim.ident.response import fit_response
 
     loop = data.attrs.get("loop")
     c = data.classes
     if (len(pred) == 0 or data.response is None or data.K is None or loop not in ("altitude", "attitude")
             or "table_robust_kp" not in c):
         return {}
-    w = 2 * np.pi / data.response_period[idx]
-    G0 = freq_response_batch(loop, w[:, None], K=1.0, T_prop=c["T_prop"][pred], T1=c["T1"][pred], tau=0.0)[:, 0]
-    K_hat = np.abs(process_response(data.response[idx], data.response_period[idx])) / np.abs(G0)
+    K_hat = fit_response(data.response[idx], data.response_period[idx], T_prop=c["T_prop"][pred], T1=c["T1"][pred],
+                         tau_class=c["tau"][pred])["K"]
     out = {}
     for k in ("kp", "kd"):
         col = np.asarray(c[f"table_robust_{k}"], dtype=np.float64)
@@ -480,17 +478,15 @@ def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainDat
     if X.shape[0] == 0:
         return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
-    logJ = np.log(np.clip(np.nan_to_num(np.asarray(data.J, np.float64), nan=J_CLIP[1], posinf=J_CLIP[1]), *J_CLIP))
+    logJ = log_cost(data.J)
 
     def cost(cls: np.ndarray) -> float:
         return float(logJ[cls, true].mean())
 
-    if temperature is None:
-        temps = (fit_temperature(act, true), *TEMPERATURES)
-        T = min(temps, key=lambda t: cost(decide(act, data.J, temperature=t).cls))
-    else:
-        T = float(temperature)
-    pred = {d: decide(act, data.J, decision=d, temperature=T).cls for d in ("bayes", "argmax")}
+    temps = (fit_temperature(act, true), *TEMPERATURES) if temperature is None else (float(temperature),)
+    bayes = {t: decide(act, data.J, temperature=t).cls for t in temps}
+    T = min(temps, key=lambda t: cost(bayes[t]))
+    pred = {"bayes": bayes[T], "argmax": act.argmax(axis=1).astype(np.int64)}
     m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
     if decision is None:
         decision = "bayes" if cost(pred["bayes"]) <= cost(pred["argmax"]) else "argmax"
