@@ -203,6 +203,40 @@ def test_refine_corrects_a_n_towards_the_noise_free_period():
     assert A.false_switch_rate(t, u, T0) == 0.0
 
 
+def test_refine_under_a_strong_relay_bias_keeps_the_cycle():
+    """A slow process under a relay bias of 0.44 h: one side's half-waves never cross zero, and the
+    other side's level time grows with tau_obs; refining from it ran the cycle away (tau_obs 0.47 s,
+    half-periods growing without bound)."""
+    from uavsim.control.relay import NPMRFT
+    from uavsim.lumped.reference import LumpedDiscrete
+
+    def run(tau_obs, bias, seconds=16.0):
+        sim = LumpedDiscrete.inner(0.5534, 0.2014, 0.8421, 0.0129, 1 / RATE, 1)
+        relay = NPMRFT(-0.73, 1.0, tau_obs, 0.0, RATE, 1, bias=np.array([bias]))
+        y = sim.reset()
+        T = int(seconds * RATE)
+        e, u = np.empty(T), np.empty(T)
+        for k in range(T):
+            e[k] = -y[0]
+            u[k] = relay(e[k:k + 1])[0]
+            y = sim.step(u[k:k + 1])
+        return np.arange(T) / RATE, e, u
+
+    t, e, u = run(1 / RATE, 0.0)
+    T0 = A.cycle_stats(t, -e, u).period
+    tau = 1 / RATE
+    for _ in range(3):
+        t, e, u = run(tau, 0.4415)
+        ref = refine(t, e, u, beta=-0.73, tau_obs=tau, a_n=0.0, rate_hz=RATE)
+        tau = ref.tau_obs
+    assert tau < 0.15 * T0
+    t, e, u = run(tau, 0.4415)
+    half = np.diff(A.switch_indices(u))[-8:]
+    for side in (half[0::2], half[1::2]):  # steady: each side's half-period repeats
+        assert side.max() - side.min() <= 2
+    assert A.cycle_stats(t, -e, u).period < 1.6 * T0
+
+
 def test_refine_refuses_a_run_without_cycle():
     t = np.arange(400) / RATE
     ref = refine(t, 0.01 * np.ones(400), np.ones(400), beta=-0.73, tau_obs=0.02, a_n=0.001, rate_hz=RATE)

@@ -81,6 +81,7 @@ FIRST_RUN_PERIOD = 0.09
 #: refined tau_obs = TAU_LEVEL_FRACTION x the measured time from the extremum to the switching level
 TAU_LEVEL_FRACTION = 0.85
 #: the level time is the median over half-cycles, but at most this times the shorter side's
+#: (and where only one side reaches its level, tau_obs is not raised: ``refine_batch``)
 LEVEL_SIDE_SLACK = 1.1
 #: refined a_n = a_n + A_N_GAIN x median early switch / (1 - beta)
 A_N_GAIN = 1.5
@@ -588,7 +589,13 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         if sides:
             level = min(float(np.median(lv[use])), LEVEL_SIDE_SLACK * float(min(sides)))
             out["level_time"][i] = level / rate_hz
-            out["tau_obs"][i] = _round_down(TAU_LEVEL_FRACTION * out["level_time"][i], rate_hz)
+            tau_new = _round_down(TAU_LEVEL_FRACTION * out["level_time"][i], rate_hz)
+            if len(sides) == 1:
+                # one side's half-waves never reach beyond zero (a strong relay bias): their switch
+                # waits for tau_obs alone, so a longer window only lengthens the cycle, and the
+                # other side's level time grows with it (run after run, until the cycle runs away)
+                tau_new = min(tau_new, float(tau0[i]))
+            out["tau_obs"][i] = tau_new
         out["refined"][i] = True
     return out
 
