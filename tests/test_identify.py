@@ -320,7 +320,8 @@ def test_lateral_fit_recovers_gain_and_outer_delay():
     from uavsim.tuning.table import load_table
 
     sub = load_grid("lateral").lateral(5)
-    att = load_table("lateral").lateral(5).attitude
+    att = dict(load_table("lateral").lateral(5).attitude)
+    att.pop("rate_hz")  # the attitude PD continuous, as python-control's loop below
     i = 3
     T2, tau_out, K = float(sub.params["T2"][i]), float(sub.params["tau"][i]) * 1.3 + 0.004, 0.8
     w = np.array([0.9, 1.7, 2.6])
@@ -334,6 +335,36 @@ def test_lateral_fit_recovers_gain_and_outer_delay():
                                tau_class=np.full(3, float(sub.params["tau"][i])), attitude=att, rate_hz=200.0)
     np.testing.assert_allclose(fit["K"], K, rtol=1e-9)
     np.testing.assert_allclose(fit["tau"], tau_out, atol=1e-9)
+
+
+def test_lateral_fit_over_the_attitude_pd_at_the_control_rate():
+    """The attitude PD flown at 200 Hz (the table's, ``rate_hz`` in the attitude dict): the fit
+    against the exact response of the lifted sampled loop (``lateral_response_sampled``, holds and
+    both PDs' sampling included) recovers K and the outer delay; the continuous attitude loop's fit
+    of the same response is off by several percent in K."""
+    from uavsim.ident.response import fit_response_lateral
+    from uavsim.lumped.lateral import lateral_response_sampled
+    from uavsim.tuning.grid import load_grid
+    from uavsim.tuning.table import load_table
+
+    a = 40  # a fast attitude class: the sampled loop differs most
+    sub = load_grid("lateral").lateral(a)
+    att = load_table("lateral").lateral(a).attitude
+    assert att["rate_hz"] == 200.0
+    i = 2
+    T2, tau_c = float(sub.params["T2"][i]), float(sub.params["tau"][i])
+    K, tau_out = 0.8, 1.2 * tau_c + 0.003
+    w = np.asarray(sub.omega[i]) * np.array([0.8, 1.0, 1.25])
+    G = lateral_response_sampled(w, 200.0, K=K, T_prop=att["T_prop"], T1=att["T1"], tau=tau_out, T2=T2,
+                                 tau_in=att["tau_in"], att_kp=att["att_kp"], att_kd=att["att_kd"],
+                                 att_N=2 * np.pi * att["att_filter_hz"])[0]
+    kw = {"T2": np.full(3, T2), "tau_class": np.full(3, tau_c), "rate_hz": 200.0}
+    fit = fit_response_lateral(G, 2 * np.pi / w, attitude=att, **kw)
+    np.testing.assert_allclose(fit["K"], K, rtol=1e-8)
+    np.testing.assert_allclose(fit["tau"], tau_out, atol=1e-9)
+    continuous = {k: v for k, v in att.items() if k != "rate_hz"}
+    off = fit_response_lateral(G, 2 * np.pi / w, attitude=continuous, **kw)
+    assert np.max(np.abs(off["K"] / K - 1)) > 0.02
 
 
 def test_lateral_session_needs_attitude_class_and_network(tmp_path):

@@ -151,13 +151,16 @@ def noise_plan(n: int, kinds: tuple[str, ...], levels: tuple[float, ...], rng: n
     return kind[perm], level[perm]
 
 
-def _truth(params: list[LumpedParams]) -> dict[str, np.ndarray]:
+def _truth(params: list[LumpedParams], att_rate_hz: float | None = None) -> dict[str, np.ndarray]:
+    """The processes as arrays; lateral: ``att_rate_hz`` the attitude PD's rate (None: continuous)."""
     keys = ["K", "T_prop", "T1", "tau"]
     if params[0].family == "lateral":
         keys += ["T2", "tau_in", "att_kp", "att_kd"]
     t = {k: np.array([getattr(p, k) for p in params], dtype=np.float64) for k in keys}
     if params[0].family == "lateral":
         t["att_N"] = 2 * math.pi * np.array([p.att_filter_hz for p in params], dtype=np.float64)
+        if att_rate_hz is not None:
+            t["att_rate_hz"] = np.full(len(params), float(att_rate_hz))
     return t
 
 
@@ -399,7 +402,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         kind, level = noise_plan(spec.n, rc.noise.kinds, spec.levels, rng)
         r = rc if a is None else replace(rc, att_classes=(a,))
         sim = _simulate(params, r, spec.seed if a is None else spec.seed * 100 + a, (kind, level), spec.chunk, log)
-        truth = _truth(params)
+        # the MuJoCo vehicle flies the attitude PD at the control rate; a grid designed over it says so
+        truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
         ids = _identify_all(b, sim, r, spec.optimum, spec.decision)

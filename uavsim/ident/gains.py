@@ -65,7 +65,7 @@ def fitted_model(bundle: ModelBundle, cls, response, response_period, *,
     Inner loops: ``K``, ``T_prop``, ``T1``, ``tau``, ``tau_class`` (``fit_response``). Lateral:
     ``K``, ``T2``, ``tau``, ``tau_class`` and the attitude loop's ``T_prop``, ``T1``, ``tau_in``,
     ``att_kp``, ``att_kd``, ``att_filter_hz`` (the bundle's, or ``attitude`` when the flight's
-    attitude loop is known better).
+    attitude loop is known better), and ``att_rate_hz`` where that PD runs at a control rate.
     """
     cls = np.asarray(cls, dtype=np.int64)
     c = bundle.column
@@ -77,6 +77,8 @@ def fitted_model(bundle: ModelBundle, cls, response, response_period, *,
         shape = np.shape(m["K"])
         m.update({k: np.full(shape, float(att[k])) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd",
                                                              "att_filter_hz")})
+        if att.get("rate_hz") is not None:  # the attitude PD flown at the control rate
+            m["att_rate_hz"] = np.full(shape, float(att["rate_hz"]))
         return m
     return fit_response(response, response_period, T_prop=c("T_prop")[cls], T1=c("T1")[cls], tau_class=c("tau")[cls],
                         rate_hz=bundle.input_rate_hz)
@@ -94,6 +96,8 @@ def model_optimum(bundle: ModelBundle, model: dict[str, np.ndarray], *, start: d
     p = {k: np.atleast_1d(np.asarray(model[k], dtype=np.float64)) for k in keys}
     if bundle.loop == "lateral":
         p["att_N"] = 2.0 * math.pi * np.atleast_1d(np.asarray(model["att_filter_hz"], dtype=np.float64))
+        if "att_rate_hz" in model:
+            p["att_rate_hz"] = float(np.asarray(model["att_rate_hz"]).ravel()[0])
     s = None if start is None else (np.atleast_1d(start["kp"]), np.atleast_1d(start["kd"]))
     return optimal_gains(bundle.loop, bundle.rate_hz, rule=bundle.rule, start=s, **p)
 

@@ -63,14 +63,21 @@ def attitude_loop_response(omega, attitude: dict[str, float]) -> np.ndarray:
     """Complementary sensitivity ``T_att(j w)`` of the attitude loop a lateral model closes over, (m,).
 
     ``attitude``: ``T_prop``, ``T1``, ``tau_in`` (s) of the unit-gain attitude process,
-    ``att_kp``, ``att_kd``, ``att_filter_hz`` of its PD (``uavsim.lumped.lateral``).
+    ``att_kp``, ``att_kd``, ``att_filter_hz`` of its PD, and ``rate_hz`` when the PD runs at a
+    control rate (the lateral grids designed over the attitude table's PD: the loop closed at
+    its samples, ``uavsim.lumped.frequency.attitude_closed_loop_sampled``, as the grid's classes
+    and table assume); without ``rate_hz`` the continuous loop (``uavsim.lumped.lateral``).
     """
+    from uavsim.lumped.frequency import attitude_closed_loop_sampled
     from uavsim.lumped.lateral import attitude_closed_loop_batch
 
     w = np.atleast_1d(np.asarray(omega, dtype=np.float64))
-    return attitude_closed_loop_batch(w[:, None], attitude["T_prop"], attitude["T1"], attitude["tau_in"],
-                                      attitude["att_kp"], attitude["att_kd"],
-                                      2.0 * np.pi * attitude["att_filter_hz"])[:, 0]
+    args = (w[:, None], attitude["T_prop"], attitude["T1"], attitude["tau_in"], attitude["att_kp"], attitude["att_kd"],
+            2.0 * np.pi * attitude["att_filter_hz"])
+    rate = attitude.get("rate_hz")
+    if rate is not None:
+        return attitude_closed_loop_sampled(*args, rate_hz=float(rate))[:, 0]
+    return attitude_closed_loop_batch(*args)[:, 0]
 
 
 def fit_response_lateral(response, response_period, *, T2, tau_class, attitude: dict[str, float],

@@ -399,7 +399,7 @@ def attitude_closed_loop_sampled(omega: np.ndarray, T_prop, T1, tau_in, att_kp, 
         T_att(w) = G_a(j w) C_d(z) / (1 + C_d(z) G_d(z))
 
     without the hold factor, so that the lateral response a controller at ``rate_hz`` measures
-    over its own samples (``uavsim.learning.identify.held_response`` of ``G``) is
+    over its own samples (``uavsim.data.preprocess.held_response`` of ``G``) is
 
         hold(w) K e^{-j w tau_out} T_att(w) / (j w (T2 j w + 1))
 

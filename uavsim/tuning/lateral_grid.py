@@ -21,7 +21,8 @@ gets a sub-grid of the ``(T2, tau_out)`` box designed on exactly that loop:
 * **The classes** (``design_classes``): a sample of the box (scrambled Sobol, plus its corners)
   is optimized at the control rate (``uavsim.tuning.optimal``); J of point ``c``'s optimum on
   point ``p`` is the exact sampled ISE of those gains divided by the gain identification
-  estimates (``"mrft"`` scaling, ``uavsim.tuning.sensitivity``), over ``p``'s optimum. Classes
+  estimates (``"response"`` scaling, ``uavsim.tuning.sensitivity``: the gain fitted at ``p``'s
+  own cycle frequency, as ``uavsim.ident`` fits it), over ``p``'s optimum. Classes
   are taken greedily, the point whose optimum brings the most sample points within
   ``COVER_J`` = 1.05 first, until every point has a class within 1.05: neighbouring classes
   end about J = 1.10 apart (the paper's design), and the class count follows from the J
@@ -196,7 +197,7 @@ def _pair_J(att: dict, X: np.ndarray, o, rate_hz: float, window: float, pairs=No
     ci, pj = np.nonzero(np.abs(lw[:, None] - lw[None, :]) <= window) if pairs is None else pairs
     pp = _params(X, att)
     Jv = j_of_points("lateral", rate_hz, pp, o.omega, o.ise, {k: v for k, v in pp.items() if k != "K"}, o.omega,
-                     o.kp, o.kd, o.N, pairs=(ci, pj))
+                     o.kp, o.kd, o.N, pairs=(ci, pj), scaling="response")
     J = np.full((P, P), J_MAX)
     J[ci, pj] = Jv
     np.fill_diagonal(J, 1.0)
@@ -321,7 +322,7 @@ def build_lateral(seed: int = 0, rate_hz: float = DEFAULT_RATE_HZ, log=None, att
              "neighbour_J": kw.get("neighbour_J", NEIGHBOUR_J), "n_samples": kw.get("n_samples", N_SAMPLES),
              "method": "per attitude class over its attitude table PD sampled at the rate: beta the lowest NP-MRFT "
                        "allows tau_obs on the fastest cycle; classes a greedy cover of a box sample by the table's "
-                       "J (optima, mrft gain estimate); neighbours the two best classes per sample point; J the "
+                       "J (optima, response gain estimate); neighbours the two best classes per sample point; J the "
                        "robust answers'",
              "lateral_rules": [[s.beta, s.pm_deg, s.gain_scale] for s in subs]}
     g = Grid(loop="lateral", version=GRID_VERSION, params={}, kp=np.zeros(0), kd=np.zeros(0),

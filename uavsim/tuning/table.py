@@ -409,10 +409,10 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
                    "T2": np.asarray(sg.params["T2"], float), "tau_in": att["tau_in"], "att_kp": att["att_kp"],
                    "att_kd": att["att_kd"], "att_N": 2.0 * math.pi * att["att_filter_hz"], "att_rate_hz": att["rate_hz"]}
         ts = time.time()
-        # the lateral grid's classes were chosen as a cover by the J of the MRFT-point gain
-        # estimate (``uavsim.tuning.lateral_grid``): its table keeps that estimate until the grid
-        # is designed again with identification's (the grid stores the table's J)
-        subs.append(build_flat_table("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att, scaling="mrft"))
+        # a grid whose classes were chosen as a cover by the J of the MRFT-point gain estimate keeps
+        # that estimate (its method says which; ``uavsim.tuning.lateral_grid``)
+        scaling = "mrft" if "mrft gain estimate" in str(grid.built.get("method", "")) else "response"
+        subs.append(build_flat_table("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att, scaling=scaling))
         subs[-1].grid_hash = grid.hash
         subs[-1].built["build_time_s"] = round(time.time() - ts, 1)
         if log:
