@@ -1,0 +1,12 @@
+"""The commands behind figures of ``docs/results/`` that no product command prints.
+
+Each module reproduces figures of one page and runs as ``python -m uavsim.results.<module>``
+(``--help`` for its options); the page names the command beside the figure. Product
+measurements have their own commands (``uavsim evaluate``, ``uavsim bench``,
+``uavsim grid report``, ``uavsim testbed score``); these are the studies around them.
+
+- :mod:`~uavsim.results.lateral_grid`: coverage of the lateral grid and its 200 Hz table
+  (``lateral-grid.md``).
+
+    python -m uavsim.results.lateral_grid --seed 2026 --per-class 10 > figures.json
+"""
