@@ -6,7 +6,15 @@ measurements have their own commands (``uavsim evaluate``, ``uavsim bench``,
 ``uavsim grid report``, ``uavsim testbed score``); these are the studies around them.
 
 - :mod:`~uavsim.results.lateral_grid`: coverage of the lateral grid and its 200 Hz table
-  (``lateral-grid.md``).
+  (``lateral-grid.md``);
+- :mod:`~uavsim.results.optimal_gains`: why the ISE step has no derivative kick and the
+  filter is fixed, the optima's gain margins, latencies of the optimum and the robust PD
+  (``optimal-gains.md``);
+- :mod:`~uavsim.results.training_sets`: figures read off a training set (rejections by
+  noise level, the cycle's lengthening by noise kind, gain recovery from one cycle;
+  ``training-sets.md``).
 
     python -m uavsim.results.lateral_grid --seed 2026 --per-class 10 > figures.json
+    python -m uavsim.results.optimal_gains --kick --free-filter --margins
+    python -m uavsim.results.training_sets datasets/altitude.h5
 """
