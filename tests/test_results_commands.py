@@ -89,6 +89,8 @@ def test_training_set_figures(small_set, capsys):
     assert sum(x["episodes"] for x in f["lengthening"]) == ds.n
     none = next(x for x in f["lengthening"] if x["kind"] == "none")
     assert 0.9 < none["period_over_period_sim_median"] < 1.1
+    rc = f["reference_cycle"]  # the sampled relay lengthens the cycle, most for the fastest classes
+    assert rc["period"]["max"] > 0 and rc["period"]["grid_class_of_max"] == 207
     assert main([str(small_set)]) == 0
     assert "| noise kind | planned | missing |" in capsys.readouterr().out
 

@@ -8,6 +8,9 @@
 * **The cycle's lengthening by noise kind**: median of each kept episode's period over
   its class's grid period (``classes/period``, the continuous-time relay cycle), and
   over its class's cycle at the control rate (``classes/period_sim``) where the file has it.
+* **The cycle at the control rate**: each class's reference cycle (K = 1, no bias,
+  no noise: ``classes/period_sim``, ``amplitude_sim``) over the grid's continuous-time
+  cycle (``classes/period``, ``amplitude``): median and largest, with the class.
 * **Gain recovery from one cycle**: ``K_hat = amplitude / (h amplitude_sim)`` of the
   kept episodes at zero noise and ``|bias| < 0.05 h`` against their drawn ``K``,
   ``|K_hat / K - 1|`` by the class's grid period (< 0.2 s, 0.2-0.4 s, > 0.4 s).
@@ -105,6 +108,21 @@ def lengthening(ds) -> list[dict]:
     return rows
 
 
+def reference_cycle(ds) -> dict:
+    """The classes' cycle at the control rate over the grid's (module docstring); {} without it."""
+    ct = ds.class_table
+    if "period_sim" not in ct or "amplitude_sim" not in ct:
+        return {}
+    out = {}
+    for name, sim, grid in (("period", "period_sim", "period"), ("amplitude", "amplitude_sim", "amplitude")):
+        r = np.asarray(ct[sim], float) / np.asarray(ct[grid], float) - 1.0
+        k = int(np.nanargmax(r))
+        out[name] = {"median": float(np.nanmedian(r)), "max": float(r[k]), "label_of_max": k,
+                     "grid_class_of_max": int(ct["grid_index"][k]) if "grid_index" in ct else None,
+                     f"{sim}_of_max": float(ct[sim][k]), f"{grid}_of_max": float(ct[grid][k])}
+    return out
+
+
 def gain_recovery(ds) -> list[dict]:
     """``|K_hat / K - 1|`` at zero noise and small bias, by the class's grid period (module docstring)."""
     ct = ds.class_table
@@ -134,7 +152,7 @@ def figures(path: str | Path) -> dict:
 
     ds = open_dataset(path)
     return {"file": str(path), "loop": ds.attrs["loop"], "episodes": ds.n, "refused": refused(ds),
-            "lengthening": lengthening(ds), "gain_recovery": gain_recovery(ds)}
+            "lengthening": lengthening(ds), "reference_cycle": reference_cycle(ds), "gain_recovery": gain_recovery(ds)}
 
 
 def _markdown(f: dict) -> str:
@@ -152,6 +170,14 @@ def _markdown(f: dict) -> str:
         s = y.get("period_over_period_sim_median")
         out.append(f"| {x['kind']} | {x['planned']} | {x['missing']} | {y.get('episodes', 0)} | "
                    f"{'-' if g is None else f'{g:.3f}'} | {'-' if s is None else f'{s:.3f}'} |")
+    rc = f.get("reference_cycle") or {}
+    if rc:
+        out += ["", "| class cycle at the control rate over the grid's | median | largest (label, grid class) |",
+                "| --- | --- | --- |"]
+        for name in ("period", "amplitude"):
+            x = rc[name]
+            out.append(f"| {name} | {x['median']:+.1%} | {x['max']:+.1%} ({x['label_of_max']}, "
+                       f"{x['grid_class_of_max']}) |")
     out += ["", "| grid period | episodes (zero noise, abs(bias) < 0.05 h) | median abs(K_hat/K - 1) | p95 |",
             "| --- | --- | --- | --- |"]
     for x in f["gain_recovery"]:
