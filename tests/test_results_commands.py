@@ -106,3 +106,22 @@ def test_training_set_figures_refuse_a_changed_grid(small_set, tmp_path, capsys)
 
     assert main([str(copy)]) == 2
     _one_line_error(capsys, "grid changed since the file was made")
+
+
+def test_onnx_latency_on_an_exported_network(tmp_path):
+    pytest.importorskip("torch")
+    from _learning_fixtures import trained_like_net
+
+    from uavsim.learning.export import export_model
+    from uavsim.results.onnx_latency import onnx_latency
+
+    export_model(trained_like_net(), {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}, tmp_path)
+    r = onnx_latency(tmp_path, n=5)
+    assert r["onnxruntime_ms"] > 0 and r["numpy_ms"] > 0 and r["max_diff"] < 1e-4
+
+
+def test_onnx_latency_refuses_a_folder_without_a_network(tmp_path, capsys):
+    from uavsim.results.onnx_latency import main
+
+    assert main([str(tmp_path)]) == 2
+    _one_line_error(capsys, "no model.onnx")

@@ -10,6 +10,8 @@ measurements have their own commands (``uavsim evaluate``, ``uavsim bench``,
 - :mod:`~uavsim.results.optimal_gains`: why the ISE step has no derivative kick and the
   filter is fixed, the optima's gain margins, latencies of the optimum and the robust PD
   (``optimal-gains.md``);
+- :mod:`~uavsim.results.onnx_latency`: one forward of an exported network with
+  onnxruntime against numpy (``io.md``);
 - :mod:`~uavsim.results.training_sets`: figures read off a training set (rejections by
   noise level, the cycle's lengthening by noise kind, gain recovery from one cycle;
   ``training-sets.md``).
