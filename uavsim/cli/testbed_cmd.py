@@ -6,11 +6,14 @@ writes ``DIR/tb_NNNNN/`` (a session without ``[model]``) and
 seeds, kinds). Same seed and kinds, same bytes. Development seeds 0-999;
 held-out seeds 10000-10099 are to be run once. ``equivalence`` measures the
 vehicles' relay cycles against their nearest lumped models. ``plan`` prints
-what a seed draws, without flying.
+what a seed draws, without flying. ``score`` runs the gap workflow on a set
+(with the oracle base model, ``true``, and with an identified one,
+``identified``) and scores its answers against the truth files.
 
     uavsim testbed sessions --seeds 0:12 --out out/testbed
     uavsim testbed sessions --seeds 0:40 --out out/tb --kinds single,none --jobs 2
     uavsim testbed equivalence --seeds 0:4 --json
+    uavsim testbed score out/testbed --models training/runs --conditions identified --log out/score.jsonl
 """
 
 from __future__ import annotations
@@ -47,6 +50,16 @@ def register(subparsers) -> None:
     q.add_argument("--kinds", default="single,pair,outside,none", metavar="K,K")
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=plan)
+    c = sub.add_parser("score", help="the gap workflow on a set of sessions, scored against the truth files")
+    c.add_argument("set", help="folder written by `uavsim testbed sessions` (with --summarize: a --log file)")
+    c.add_argument("--models", help="network root for identification (default: uavsim's default)")
+    c.add_argument("--conditions", default="true,identified",
+                   help="base model: true (the truth's lumped equivalent), identified (default: both)")
+    c.add_argument("--log", metavar="FILE", help="append one JSON line per session and condition")
+    c.add_argument("--seed", type=int, default=0, help="seed of the workflow's simulated noise (default 0)")
+    c.add_argument("--threads", type=int, default=0, help="MuJoCo threads (default: all CPUs the process may use)")
+    c.add_argument("--summarize", action="store_true", help="print the tables of a --log file given as SET")
+    c.set_defaults(func=score)
 
 
 def _one(args: tuple[int, str, tuple[str, ...]]) -> dict:
@@ -136,4 +149,17 @@ def plan(args: argparse.Namespace) -> int:
         print_json({"plans": rows})
     else:
         print_table(rows)
+    return 0
+
+
+def score(args: argparse.Namespace) -> int:
+    from uavsim.testbed.score import parse_conditions, score_set, summarize_log, summary
+
+    if args.summarize:
+        print(summarize_log(args.set))
+        return 0
+    conditions = parse_conditions(args.conditions)
+    records = score_set(args.set, models=args.models, conditions=conditions, log=args.log, seed=args.seed,
+                        nthread=args.threads)
+    print(summary(records))
     return 0

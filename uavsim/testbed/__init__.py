@@ -14,7 +14,9 @@ autopilot that mixes with a linear thrust model and holds the other axes
 (``flight``), hidden effects written independently of the workflow's,
 vocabulary and other shapes (``hidden``), and the session generator with
 its truth files (``sessions``). ``vehicle`` draws an aircraft per seed and
-gives its lumped equivalent; ``equivalence`` measures how close it is.
+gives its lumped equivalent; ``equivalence`` measures how close it is;
+``score`` runs the gap workflow on a set of its sessions and scores the
+answers against the truth files (``uavsim testbed score``).
 
     from uavsim.testbed import testbed_session, write_testbed
     session, truth = testbed_session(7)              # no [model]: the user's case

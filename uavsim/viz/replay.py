@@ -194,7 +194,8 @@ def phase_portrait(t: np.ndarray, e: np.ndarray) -> np.ndarray:
     return np.column_stack([e, np.gradient(e, t)])
 
 
-def _blueprint(runs: list[ReplayRun]) -> Any:
+def replay_blueprint(runs: list[ReplayRun]) -> Any:
+    """The viewer layout ``replay`` logs for ``runs`` (a ``rerun.blueprint.Blueprint``)."""
     import rerun.blueprint as rrb
 
     def run_layout(run: ReplayRun) -> Any:
@@ -506,7 +507,7 @@ def replay(
         runs, info = dataset_runs(src, cls or 0, episode or 0, resimulate=resimulate)
     else:
         runs, info = scenario_runs(src, run)
-    blueprint = _blueprint(runs)
+    blueprint = replay_blueprint(runs)
 
     rec = rr.RecordingStream(APP_ID, send_properties=False)
     sinks: list[Any] = []

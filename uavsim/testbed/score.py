@@ -1,4 +1,4 @@
-"""Today's gap workflow on testbed sessions: with the vehicle's lumped equivalent, and with an identified model.
+"""The gap workflow on testbed sessions, scored against their truth files.
 
 For each session folder of a set written by ``uavsim testbed sessions``:
 
@@ -12,14 +12,16 @@ For each session folder of a set written by ``uavsim testbed sessions``:
 Both call what ``uavsim gap`` calls (``uavsim.gap.iterate.analyse``: base
 model, dead runs dropped, effects added one by one, ``named`` / ``none`` /
 ``absorbed`` / ``unexplained``). One JSON line per session and condition goes to
-``--log``; the summary tables (markdown) go to stdout.
+``--log``; the summary tables (markdown) go to stdout, progress to stderr.
+``--summarize LOG`` prints the tables of a logged run with its answers decided
+again by today's thresholds (``redecide``).
 
-    python docs/results/gap_testbed_baseline.py out/testbed-dev --models training/runs --log out/baseline.jsonl
+    uavsim testbed score out/testbed-dev --models training/runs --log out/baseline.jsonl
+    uavsim testbed score out/baseline.jsonl --summarize
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -30,6 +32,8 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
 from uavsim.gap.iterate import absorbed_by, analyse, decide
+
+CONDITIONS = ("true", "identified")
 
 #: linear effects an identified linear model can take in (answer ``absorbed`` or ``none`` counts for them)
 ABSORBABLE = ("delay", "lag", "gain", "lowpass")
@@ -149,34 +153,50 @@ def summary(records: list[dict]) -> str:
     return "\n".join(out)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("set", help="folder written by uavsim testbed sessions (or, with --summarize, a --log file)")
-    ap.add_argument("--models", help="network root for identification (default: uavsim's default)")
-    ap.add_argument("--conditions", default="true,identified")
-    ap.add_argument("--log", help="append one JSON line per session and condition")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the workflow's simulated noise")
-    ap.add_argument("--threads", type=int, default=0, help="MuJoCo threads (default: all CPUs the process may use)")
-    ap.add_argument("--summarize", action="store_true", help="print the tables of a --log file given as SET")
-    args = ap.parse_args()
-    if args.summarize:  # the answers re-decided with today's thresholds (they are set on these logs)
-        recs = [json.loads(line) for line in Path(args.set).read_text().splitlines() if line.strip()]
-        print(summary([redecide(r) for r in recs]))
-        return 0
-    folders = sorted(p for p in Path(args.set).iterdir() if p.is_dir() and (p / "session.toml").exists())
+def parse_conditions(text: str) -> tuple[str, ...]:
+    """``"true,identified"`` -> the conditions in order; ``UserError`` on an unknown one."""
+    conds = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in conds if c not in CONDITIONS]
+    if not conds or bad:
+        raise UserError(f"--conditions: expected a subset of {','.join(CONDITIONS)}, got {text!r}")
+    return conds
+
+
+def summarize_log(path: str | Path) -> str:
+    """The tables of a ``--log`` file, its answers re-decided with today's thresholds (they are set on these logs)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{path}: not a file (--summarize reads a --log file)")
+    try:
+        recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a --log file of JSON lines ({exc})") from None
+    return summary([redecide(r) for r in recs])
+
+
+def score_set(folder: str | Path, *, models: str | None = None, conditions: tuple[str, ...] = CONDITIONS,
+              log: str | Path | None = None, seed: int = 0, nthread: int = 0) -> list[dict]:
+    """Run and score every session of a ``uavsim testbed sessions`` folder under each condition.
+
+    One record per session and condition (appended to ``log`` as a JSON line as soon as it is done).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise UserError(f"{folder}: not a folder (a set written by `uavsim testbed sessions`)")
+    folders = sorted(p for p in folder.iterdir() if p.is_dir() and (p / "session.toml").exists())
+    if not folders:
+        raise UserError(f"{folder}: no session folders (a set written by `uavsim testbed sessions`)")
+    missing = [f.name for f in folders if not Path(str(f) + ".truth.json").is_file()]
+    if missing:
+        raise UserError(f"{folder}: no truth file beside {missing[0]} ({missing[0]}.truth.json; {len(missing)} missing)")
     records = []
-    for cond in args.conditions.split(","):
+    for cond in conditions:
         for f in folders:
-            r = one(f, args.models, cond, args.seed, args.threads)
+            r = one(f, models, cond, seed, nthread)
             records.append(r)
             print(f"{cond} {r['name']} {r['truth']} -> {r['answer']} {[x['name'] for x in r.get('found') or []]} "
                   f"({r['seconds']:.0f} s)", file=sys.stderr, flush=True)  # fmt: skip
-            if args.log:
-                with open(args.log, "a") as fh:
+            if log:
+                with open(log, "a") as fh:
                     fh.write(json.dumps(r, default=float) + "\n")
-    print(summary(records))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return records

@@ -1,6 +1,6 @@
 """Figures of docs/results/lateral-grid.md: the lateral grid and its 200 Hz table.
 
-    .venv/bin/python docs/results/lateral_grid_figures.py --seed 2026 --per-class 10 > figures.json
+    python -m uavsim.results.lateral_grid --seed 2026 --per-class 10 > figures.json
 
 Coverage: ``--per-class`` seeded random box points per attitude class (seed + attitude class,
 ``uavsim.tuning.table_report``), each judged against its own ISE-optimal PD at 200 Hz, answered by
@@ -11,18 +11,21 @@ judged with this code, on the loop as flown (the attitude table PD sampled at 20
 ``attitude``), like the new ones.
 
     git show 3feb740:uavsim/tuning/grids/lateral.json > /tmp/old/lateral.json   # and its table
-    .venv/bin/python docs/results/lateral_grid_figures.py --seed 2026 --per-class 10 \
+    python -m uavsim.results.lateral_grid --seed 2026 --per-class 10 \
         --grid /tmp/old/lateral.json --table /tmp/old/optimal-lateral-200hz.json > old.json
+    python -m uavsim.results.lateral_grid --render figures.json old.json      # the page's markdown tables
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 import numpy as np
 
+from uavsim.errors import UserError
 from uavsim.tuning.grid import box_sample, load_grid
 from uavsim.tuning.table import load_table
 from uavsim.tuning.table_report import _neighbour, _points, j_stats
@@ -73,9 +76,19 @@ def _f(st: dict) -> str:
     return f"{v(st['median'])} / {v(st['p95'])} / {v(st['max'])}, {st['unstable']}"
 
 
+def _read_json(path: str) -> dict:
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror})") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not the JSON this module prints ({exc})") from None
+
+
 def render(new_path: str, old_path: str) -> None:
     """Markdown tables of lateral-grid.md from the JSON of a new and an old run."""
-    new, old = (json.load(open(p)) for p in (new_path, old_path))
+    new, old = (_read_json(p) for p in (new_path, old_path))
     print("| figure (median / p95 / max, unstable) | old grid | new grid |\n| --- | --- | --- |")
     for k, name in (("best", "best class, optimum"), ("robust_best", "best class, robust"),
                     ("nearest", "nearest class, optimum"), ("robust_nearest", "nearest class, robust"),
@@ -97,8 +110,8 @@ def render(new_path: str, old_path: str) -> None:
               f"{_f(r['coverage_robust_best'])} | {_f(r['coverage_best'])} | {_f(o['coverage_robust_best'])} |")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m uavsim.results.lateral_grid", description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--per-class", type=int, default=10)
     ap.add_argument("--continuous-check", action="store_true",
@@ -106,23 +119,42 @@ def main() -> None:
     ap.add_argument("--grid", help="lateral grid file (default: the packaged one)")
     ap.add_argument("--table", help="its 200 Hz table file (default: the packaged one)")
     ap.add_argument("--render", nargs=2, metavar=("NEW_JSON", "OLD_JSON"), help="print the markdown tables")
-    args = ap.parse_args()
-    if args.render:
-        render(*args.render)
-        return
+    args = ap.parse_args(argv)
+    if args.per_class < 1:
+        print(f"python -m uavsim.results.lateral_grid: --per-class must be >= 1, got {args.per_class}", file=sys.stderr)
+        return 2
+    try:
+        if args.render:
+            render(*args.render)
+        else:
+            print(json.dumps(figures(args.seed, args.per_class, grid=args.grid, table=args.table,
+                                     continuous=args.continuous_check), indent=1))
+    except UserError as exc:
+        print(f"python -m uavsim.results.lateral_grid: {exc}", file=sys.stderr)
+        return 2
+    except KeyError as exc:
+        print(f"python -m uavsim.results.lateral_grid: --render: a file lacks {exc} (not this module's JSON)",
+              file=sys.stderr)
+        return 2
+    return 0
+
+
+def figures(seed: int, per_class: int, *, grid: str | None = None, table: str | None = None,
+            continuous: bool = False) -> dict:
+    """The figures of the lateral grid (module docstring) as one JSON-able dict."""
     t0 = time.time()
-    g = load_grid("lateral", args.grid)
-    t = load_table("lateral", path=args.table, grid=g)
+    g = load_grid("lateral", grid)
+    t = load_table("lateral", path=table, grid=g)
     groups = [(s, st, st.attitude) for s, st in zip(g.sub, t.sub, strict=True)]
-    n = args.per_class
-    pts = _points("lateral", groups, n, args.seed)
-    X = np.vstack([box_sample("lateral", np.random.default_rng(args.seed + k), n) for k in range(len(groups))])
+    n = per_class
+    pts = _points("lateral", groups, n, seed)
+    X = np.vstack([box_sample("lateral", np.random.default_rng(seed + k), n) for k in range(len(groups))])
     corner = (X[:, 0] < 0.6) & (X[:, 1] <= 0.01) & pts["ok"]  # the old grid's failures were here
-    out = {"grid_hash": g.hash, "table_hash": t.hash, "seed": args.seed, "per_class": n,
+    out = {"grid_hash": g.hash, "table_hash": t.hash, "seed": seed, "per_class": n,
            "pooled": {k: j_stats(pts[k][pts["ok"]]) for k in KINDS}, "n_without_optimum": int((~pts["ok"]).sum()),
            "fast_corner": {k: j_stats(pts[k][corner]) for k in KINDS},
            "per_class_figures": []}
-    if args.continuous_check:
+    if continuous:
         out["continuous_vs_sampled"] = continuous_check(g)
     for a, (s, st, _) in enumerate(groups):
         sl = slice(a * n, (a + 1) * n)
@@ -139,8 +171,8 @@ def main() -> None:
             row["n_neighbour_pairs"] = len(s.neighbours)
         out["per_class_figures"].append(row)
     out["time_s"] = round(time.time() - t0, 1)
-    print(json.dumps(out, indent=1))
+    return out
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -4,14 +4,15 @@
 the demo's training set, ``datasets/small.h5`` class 1 episode 5, simulated
 again exactly); this script then reads the ``.rrd`` back with Rerun's own
 reader (``rerun.chunk.RrdReader``) and draws what it holds with matplotlib,
-because the Rerun viewer cannot open a window on a headless machine: y as the
+because the Rerun viewer cannot open a window on a headless machine (the
+viewer's own screenshot is ``uavsim.viz.viewer_png``): y as the
 relay saw it beside the noise-free y_true, e with the switches, accepted
 extrema and tau_obs windows, u, the phase portraits, and the vehicle's pose
 with its rotor thrust arrows at the highest point of the cycle.
 
-    .venv/bin/python docs/make_replay_png.py                                  # datasets/small.h5 -> docs/replay.png
-    .venv/bin/python docs/make_replay_png.py datasets/small.h5 docs/replay.png --class 1 --episode 5
-    .venv/bin/python docs/make_replay_png.py --rrd out/demo-altitude.rrd out/x.png   # an existing recording
+    python -m uavsim.viz.replay_png                                  # datasets/small.h5 -> docs/replay.png
+    python -m uavsim.viz.replay_png datasets/small.h5 docs/replay.png --class 1 --episode 5
+    python -m uavsim.viz.replay_png --rrd out/demo-altitude.rrd out/x.png   # an existing recording
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
+
+from uavsim.errors import UserError
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -61,7 +64,7 @@ def _series(data: dict, ent: str) -> tuple[np.ndarray, np.ndarray]:
 def _draw_vehicle(ax, data: dict, base: str, t_at: float) -> None:
     veh = data.get(f"{base}/world/vehicle")
     if not veh:
-        ax.text(0.5, 0.5, "no vehicle pose\n(not a simulation)", ha="center", va="center", transform=ax.transAxes)
+        ax.text2D(0.5, 0.5, "no vehicle pose\n(not a simulation)", ha="center", va="center", transform=ax.transAxes)
         return
     from scipy.spatial.transform import Rotation
 
@@ -179,8 +182,8 @@ def draw(rrd: str | Path, out: str | Path, title: str = "") -> None:
     print(f"wrote {out}")
 
 
-def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m uavsim.viz.replay_png", description=__doc__.split("\n\n")[0])
     p.add_argument("source", nargs="?", default="datasets/small.h5", help="what to replay (session, dataset, run)")
     p.add_argument("out", nargs="?", default="docs/replay.png")
     p.add_argument("--class", dest="cls", type=int, default=None)
@@ -189,24 +192,33 @@ def main(argv: list[str] | None = None) -> None:
     a = p.parse_args(argv)
     os.environ.setdefault("RERUN_ANALYTICS", "0")
     if a.rrd:
+        if not Path(a.rrd).is_file():
+            print(f"{a.rrd}: not found (a recording written by `uavsim replay --save`)", file=sys.stderr)
+            return 2
         draw(a.rrd, a.out)
-        return
+        return 0
     from uavsim.viz.replay import replay
 
     src = Path(a.source)
     if not src.exists():
-        sys.exit(f"{src}: not found (`make demo` writes datasets/small.h5)")
+        print(f"{src}: not found (`make demo` writes datasets/small.h5)", file=sys.stderr)
+        return 2
     is_ds = src.suffix == ".h5"
     cls = a.cls if a.cls is not None else (1 if is_ds else None)
     ep = a.episode if a.episode is not None else (5 if is_ds else None)
     with tempfile.TemporaryDirectory() as tmp:
         rrd = Path(tmp) / "replay.rrd"
-        s = replay(src, rrd, cls=cls, episode=ep)
+        try:
+            s = replay(src, rrd, cls=cls, episode=ep)
+        except UserError as exc:
+            print(exc, file=sys.stderr)
+            return 2
         run = s["runs"][0]
         what = f"{src.name} class {cls} episode {ep}" if is_ds else src.name
         draw(rrd, a.out, f"uavsim replay {what} ({run['kind']}, {run['extrema']} accepted extrema, "
                          f"u mismatch {run['u_mismatch']}), drawn from the .rrd read back")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
