@@ -16,12 +16,8 @@ import uavsim
 
 ROOT = Path(uavsim.__file__).parent
 
-#: private names imported across modules, each with its way out: the lateral-grid study uses the table
-#: report's point sampler and neighbour J (they become public API of ``tuning/table_report.py``)
-KNOWN_PRIVATE: set[tuple[str, str, str]] = {
-    ("uavsim.results.lateral_grid", "uavsim.tuning.table_report", "_neighbour"),
-    ("uavsim.results.lateral_grid", "uavsim.tuning.table_report", "_points"),
-}
+#: private names imported across modules, each with its way out (none today)
+KNOWN_PRIVATE: set[tuple[str, str, str]] = set()
 
 
 def _modules() -> dict[str, Path]:

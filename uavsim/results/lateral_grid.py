@@ -28,7 +28,7 @@ import numpy as np
 from uavsim.errors import UserError
 from uavsim.tuning.grid import box_sample, load_grid
 from uavsim.tuning.table import load_table
-from uavsim.tuning.table_report import _neighbour, _points, j_stats
+from uavsim.tuning.table_report import j_stats, neighbour_j, point_j
 
 KINDS = ("best", "robust_best", "nearest", "robust_nearest", "rule")
 
@@ -147,7 +147,7 @@ def figures(seed: int, per_class: int, *, grid: str | None = None, table: str | 
     t = load_table("lateral", path=table, grid=g)
     groups = [(s, st, st.attitude) for s, st in zip(g.sub, t.sub, strict=True)]
     n = per_class
-    pts = _points("lateral", groups, n, seed)
+    pts = point_j("lateral", groups, n, seed)
     X = np.vstack([box_sample("lateral", np.random.default_rng(seed + k), n) for k in range(len(groups))])
     corner = (X[:, 0] < 0.6) & (X[:, 1] <= 0.01) & pts["ok"]  # the old grid's failures were here
     out = {"grid_hash": g.hash, "table_hash": t.hash, "seed": seed, "per_class": n,
@@ -158,8 +158,8 @@ def figures(seed: int, per_class: int, *, grid: str | None = None, table: str | 
         out["continuous_vs_sampled"] = continuous_check(g)
     for a, (s, st, _) in enumerate(groups):
         sl = slice(a * n, (a + 1) * n)
-        nb_r, _w = _neighbour(s, st.J_robust)
-        nb_o, _w = _neighbour(s, st.J)
+        nb_r, _w = neighbour_j(s, st.J_robust)
+        nb_o, _w = neighbour_j(s, st.J)
         row = {"att_class": a, "beta": s.beta, "pm_deg": s.pm_deg, "gain_scale": s.gain_scale, "n_classes": s.n,
                "period_range_s": [float(s.period.min()), float(s.period.max())],
                "neighbour_J_robust": j_stats(nb_r), "neighbour_J_optimum": j_stats(nb_o),

@@ -45,7 +45,7 @@ from uavsim.tuning.jmatrix import J_MAX, symmetrize
 from uavsim.tuning.optimal import optimal_gains
 from uavsim.tuning.sensitivity import controller_ise, j_of_points
 
-__all__ = ["table_figures", "j_stats", "DETUNE"]
+__all__ = ["table_figures", "j_stats", "neighbour_j", "point_j", "DETUNE"]
 
 #: the detuning control's factor on kp and kd
 DETUNE = 0.85
@@ -68,7 +68,8 @@ def _ratio(q: np.ndarray, q_opt: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(J), np.maximum(J, 1.0), J_MAX)
 
 
-def _neighbour(grid, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_j(grid, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J between neighbouring classes (``neighbour_pairs``), symmetrized: across levels, within a level."""
     Js = symmetrize(J)
     across, within = neighbour_pairs(grid)
     return (Js[across[:, 0], across[:, 1]] if len(across) else np.zeros(0),
@@ -81,7 +82,7 @@ def _cat(dicts: list[dict[str, Any]], sizes: list[int]) -> dict[str, np.ndarray]
                                zip(dicts, sizes, strict=True)]) for k in dicts[0]}
 
 
-def _points(fam: str, groups: list[tuple], n: int, seed: int) -> dict[str, np.ndarray]:
+def point_j(fam: str, groups: list[tuple], n: int, seed: int) -> dict[str, np.ndarray]:
     """J of the answers and controls on ``n`` random box processes per group (module docstring).
 
     ``groups``: (grid, table, attitude or None) per grid (the lateral sub-grids); the points of
@@ -185,7 +186,7 @@ def table_figures(grid, table, n_points: int = 300, seed: int = 1) -> dict[str, 
     fig: dict[str, list] = {k: [] for k in ("across", "within", "r_across", "r_within", "rule_J", "robust_own")}
     for g, t, _ in pairs:
         for pre, J in (("", t.J), ("r_", t.J_robust)):
-            a, w = _neighbour(g, J)
+            a, w = neighbour_j(g, J)
             fig[pre + "across"].append(a)
             fig[pre + "within"].append(w)
         fig["rule_J"].append(_ratio(t.rule_ise, t.ise))
@@ -201,6 +202,6 @@ def table_figures(grid, table, n_points: int = 300, seed: int = 1) -> dict[str, 
                            "robust_own_J": j_stats(f["robust_own"]),
                            "robust_neighbour_J_across_levels": nb(f["r_across"]),
                            "robust_neighbour_J_within_level": nb(f["r_within"])}
-    rep.update(_summarize(_points(fam, pairs, per, seed)))
+    rep.update(_summarize(point_j(fam, pairs, per, seed)))
     rep["time_s"] = round(time.time() - t0, 1)
     return rep
