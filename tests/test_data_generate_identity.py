@@ -105,3 +105,20 @@ def test_bench_set_unchanged(tmp_path):
     out = tmp_path / "bench.h5"
     generate(bench_recipe(8), out, progress=False)
     assert h5_digest(out) == BENCH8_DIGEST
+
+
+def test_noise_trace_block_is_the_per_sample_call():
+    # the hover's one-call path: bit for bit the per-sample effect, quantized groups and samples past the trace
+    from uavsim.data.noise_trace import NoiseTrace
+    from uavsim.noise.models import make_noise
+
+    n, T = 6, 50
+    groups = [(np.array([0, 1]), make_noise("coloured", 1.0, np.array([0.1, 0.2]))),
+              (np.array([2, 3]), make_noise("quantization", 1.0, np.array([0.05, 0.3]))),
+              (np.array([4]), make_noise("outliers", 1.0, np.array([0.4])))]
+    x = np.random.default_rng(1).normal(size=(T + 5, n))
+    a, b = NoiseTrace(groups=groups, samples=T), NoiseTrace(groups=groups, samples=T)
+    a.reset(n, 200.0, np.random.default_rng(2))
+    b.reset(n, 200.0, np.random.default_rng(2))
+    ref = np.stack([a(x[k], k) for k in range(T + 5)])
+    assert np.array_equal(b.block(x), ref)
