@@ -76,3 +76,13 @@ class NoiseTrace(SignalEffect):
         for idx, step in self._quant:
             out[idx] = step * np.round(out[idx] / step)
         return out
+
+    def block(self, x: np.ndarray) -> np.ndarray:
+        """``self(x[k], k)`` for every row ``k`` of ``x`` (T, n) at once, (T, n): a whole record after reset."""
+        x = np.asarray(x, dtype=np.float64)
+        T = min(x.shape[0], self.samples)
+        out = np.array(x, dtype=np.float64, copy=True)
+        out[:T] += self._add[:T]
+        for idx, step in self._quant:
+            out[:, idx] = step * np.round(out[:, idx] / step)
+        return out

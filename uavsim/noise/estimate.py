@@ -68,7 +68,7 @@ from scipy import signal as _signal
 
 from uavsim.control.relay import beta_min, tau_obs_limit
 from uavsim.errors import UserError
-from uavsim.noise.analysis import relay_phase, rising_edges, switch_indices
+from uavsim.noise.analysis import relay_phase, switch_indices
 
 #: quantile of |high-passed signal| taken as the noise amplitude
 A_N_QUANTILE = 0.90
@@ -342,6 +342,9 @@ def synthetic_hover(n: int, seconds: float, rate_hz: float, a0: np.ndarray, effe
     if effect is None:
         return drift
     effect.reset(n, rate_hz, rng)
+    block = getattr(effect, "block", None)
+    if block is not None:  # a precomputed trace (uavsim.data.noise_trace): the same samples in one call
+        return np.ascontiguousarray(block(drift.T).T)
     return np.stack([effect(drift[:, k], k) for k in range(steps)], axis=1)
 
 
@@ -469,26 +472,40 @@ def half_cycles(e_smooth: np.ndarray, u: np.ndarray, beta: float, start: int = 0
     not reached in the record).
     """
     s = np.asarray(e_smooth, dtype=np.float64)
-    high = relay_phase(u)
-    sw = switch_indices(u)
+    return _half_cycles(s, relay_phase(u), switch_indices(u), beta, start)
+
+
+def _first_beyond(s: np.ndarray, i: int, near: int, lvl: float, down: bool) -> int:
+    """Samples from ``i`` to the first of ``s[i:]`` at or beyond ``lvl`` (below when ``down``), -1 if none.
+
+    Searches ``s[i:near]`` first: the level is usually reached within the half-cycle.
+    """
+    for lo, hi in ((i, near), (near, s.size)):
+        seg = s[lo:hi]
+        hit = np.flatnonzero(seg <= lvl) if down else np.flatnonzero(seg >= lvl)
+        if hit.size:
+            return lo - i + int(hit[0])
+    return -1
+
+
+def _half_cycles(s: np.ndarray, high: np.ndarray, sw: np.ndarray, beta: float, start: int) -> dict[str, np.ndarray]:
+    """:func:`half_cycles` from the relay phase ``high`` and switch indices ``sw`` of ``u``."""
     sw = sw[sw >= max(start, 1)]
     cols: dict[str, list] = {k: [] for k in ("down", "valid", "extremum", "early", "late_half_sample",
                                              "level_samples")}
-    for a, b in zip(sw[:-1], sw[1:], strict=True):
+    for a, b in zip(sw[:-1].tolist(), sw[1:].tolist(), strict=True):
         down = not high[b]
         seg = s[a:b]
         j = int(np.argmax(seg) if down else np.argmin(seg))
         x = float(seg[j])
         lvl = -beta * x
         valid = (x > lvl) if down else (x < lvl)
-        rest = s[a + j:]
-        hit = np.flatnonzero(rest <= lvl) if down else np.flatnonzero(rest >= lvl)
         cols["down"].append(down)
         cols["valid"].append(valid)
         cols["extremum"].append(x)
         cols["early"].append((s[b] - lvl) if down else (lvl - s[b]))
         cols["late_half_sample"].append(0.5 * abs(s[b] - s[b - 1]))
-        cols["level_samples"].append((int(hit[0]) if hit.size else -1) if valid else 0)
+        cols["level_samples"].append(_first_beyond(s, a + j, b + 1, lvl, down) if valid else 0)
     out = {k: np.asarray(v, dtype=float) for k, v in cols.items()}
     out["down"] = out["down"].astype(bool)
     out["valid"] = out["valid"].astype(bool)
@@ -538,10 +555,15 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
            "false_switches": np.zeros(m, dtype=np.int64),
            "smooth": np.full((m, T), np.nan)}
     finite = np.all(np.isfinite(E), axis=1)
+    # the relay phase of every run at once (relay_phase row by row: the same comparisons)
+    high = U > (0.5 * (np.max(U, axis=1) + np.min(U, axis=1)))[:, None] if T else np.zeros((m, 0), bool)
+    change = high[:, 1:] != high[:, :-1]
+    rise = high[:, 1:] & ~high[:, :-1]
+    switches: dict[int, np.ndarray] = {}
     for i in np.flatnonzero(finite):
         # the period from every span of two half-cycles: a short record still gives several
-        sw = switch_indices(U[i])
-        sw = sw[sw >= i0]
+        switches[i] = np.flatnonzero(change[i]) + 1
+        sw = switches[i][switches[i] >= i0]
         if sw.size >= MIN_HALF_CYCLES + 1:
             out["period"][i] = float(np.median(t[sw[2:]] - t[sw[:-2]]))
     ok = np.flatnonzero(np.isfinite(out["period"]))
@@ -556,14 +578,14 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
     if hover_a_n is not None:
         q = np.minimum(q, np.broadcast_to(np.asarray(hover_a_n, dtype=np.float64), (m,)))
     for j, i in enumerate(ok):
-        edges = rising_edges(U[i])
+        edges = np.flatnonzero(rise[i]) + 1
         edges = edges[edges >= i0]
         if edges.size >= 2:
             # cycles between consecutive rising edges (reduceat's last segment runs to the end: dropped)
             lo = np.minimum.reduceat(S[j], edges)[:-1]
             hi = np.maximum.reduceat(S[j], edges)[:-1]
             out["amplitude"][i] = float(np.median(0.5 * (hi - lo)))
-        hc = half_cycles(S[j], U[i], float(beta[i]), i0)
+        hc = _half_cycles(S[j], high[i], switches[i], float(beta[i]), i0)
         valid = hc["valid"]
         out["half_cycles"][i] = int(valid.sum())
         if hc["down"].size < MIN_HALF_CYCLES or valid.sum() < MIN_VALID_HALF_CYCLES:
@@ -574,8 +596,7 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         a_n_new = an0[i] + A_N_GAIN * err / (1.0 - beta[i])
         # false switches (half-periods under a quarter of the period: beta held tau_obs below the
         # noise period) make the half-cycles' errors meaningless: the correction is the protection left
-        sw = switch_indices(U[i])
-        sw = sw[sw >= i0]
+        sw = switches[i][switches[i] >= i0]
         out["false_switches"][i] = int(np.sum(np.diff(t[sw]) < 0.25 * out["period"][i]))
         if out["false_switches"][i]:
             a_n_new = max(a_n_new, A_N_FALSE_FACTOR * an0[i], A_N_FALSE_FLOOR * q[i])

@@ -234,6 +234,7 @@ class LoopBatch:
         self.nthread = nthread
         # wrench -> rotor PWM (us), computed once: pinv is not free at 200 Hz
         self._wrench_to_pwm = (self.vehicle.mixer() / self.vehicle.thrust_per_us).T.copy()
+        self._hold_cache: dict[int | None, tuple[np.ndarray, ...]] = {}
         self.y0 = None if y0 is None else np.broadcast_to(np.asarray(y0, dtype=float), (self.n,)).copy()
         self._make_batch()
 
@@ -247,6 +248,11 @@ class LoopBatch:
         d = np.asarray(m.actuator_delay, dtype=np.float64)
         self._sub_step = (d > 0.0) & (d < self.dt)
         self._sub_frac = np.where(self._sub_step, d / self.dt, 0.0)[:, None]
+        # the blend touches only those rows: their indices and weights, once
+        self._sub_any = bool(self._sub_step.any())
+        self._sub_rows = np.flatnonzero(self._sub_step)
+        self._sub_f = self._sub_frac[self._sub_rows]
+        self._sub_g = 1.0 - self._sub_f
         self._ctrl_prev = np.zeros((n, self.model.nu))
         b.expand("actuator_delay")[:] = np.where(self._sub_step, 0.0, d)[:, None]
         if self.lateral:
@@ -268,14 +274,24 @@ class LoopBatch:
             self.qpos[:, self.map.axis] = self.y0
 
     # -- one control sample -------------------------------------------------
+    def _hold_gains(self, skip: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Wrench columns, joint axes and the holds' stiffness and damping, (k,) each, all axes but ``skip``."""
+        gains = self._hold_cache.get(skip)
+        if gains is None:
+            v, om = self.vehicle, _HOLD_OMEGA
+            rows = [(widx, ax, -inertia * om * om, 2.0 * inertia * om)
+                    for widx, ax, inertia in ((0, 2, v.mass_kg), (1, 3, v.Jx_kgm2), (2, 4, v.Jy_kgm2),
+                                              (3, 5, v.Jz_kgm2)) if widx != skip]
+            widx, ax, kq, kw = zip(*rows, strict=True)
+            gains = (np.array(widx), np.array(ax), np.array(kq), np.array(kw))
+            self._hold_cache[skip] = gains
+        return gains
+
     def _holds(self, wrench: np.ndarray, skip: int | None) -> None:
         """Slow ideal PD holds on the untested axes (on the true state)."""
-        v, q, w = self.vehicle, self.qpos, self.qvel
-        om = _HOLD_OMEGA
-        for widx, ax, inertia in ((0, 2, v.mass_kg), (1, 3, v.Jx_kgm2), (2, 4, v.Jy_kgm2), (3, 5, v.Jz_kgm2)):
-            if widx == skip:
-                continue
-            wrench[:, widx] += -inertia * om * om * q[:, ax] - 2.0 * inertia * om * w[:, ax]
+        # all held axes in one expression (per element the same products as one axis at a time)
+        widx, ax, kq, kw = self._hold_gains(skip)
+        wrench[:, widx] += kq * self.qpos[:, ax] - kw * self.qvel[:, ax]
 
     def _apply(self, u_cmd: np.ndarray, att_u: np.ndarray | None) -> None:
         v, m = self.vehicle, self.map
@@ -307,9 +323,9 @@ class LoopBatch:
             As :meth:`mujoco.batch.Batch.step`.
         """
         new = self.ctrl.copy()
-        if self._sub_step.any():
-            f = self._sub_frac
-            self.ctrl[:] = np.where(self._sub_step[:, None], f * self._ctrl_prev + (1.0 - f) * new, new)
+        if self._sub_any:
+            rows, f, g = self._sub_rows, self._sub_f, self._sub_g
+            self.ctrl[rows] = f * self._ctrl_prev[rows] + g * new[rows]
             self.batch.step(nstep=1)
             self.ctrl[:] = new
             if self.rate_steps > 1:
