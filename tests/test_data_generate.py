@@ -181,6 +181,15 @@ chunk = 4
     np.testing.assert_allclose(ds.class_table["T2"], sub.params["T2"][[0, 5]])
     # slow lateral cycles: 200 Hz sampling hardly matters, the reference cycle is the grid's
     np.testing.assert_allclose(ds.class_table["period_sim"], sub.period[[0, 5]], rtol=0.06)
+    # run again (a lateral run interrupted after some files): the finished file is kept, not made again
+    f = tmp_path / "lat_a00.h5"
+    mtime = f.stat().st_mtime_ns
+    again = generate(r, tmp_path / "lat.h5", progress=False)
+    assert again["episodes_run"] == 0 and again["files"] == [str(f)] and f.stat().st_mtime_ns == mtime
+    # another recipe (seed) makes it again
+    r2 = parse_recipe(text.replace("seed = 4", "seed = 5"), str(tmp_path / "lat.toml"), "lat")
+    assert generate(r2, tmp_path / "lat.h5", progress=False)["episodes_run"] == s["episodes_run"] > 0
+    assert f.stat().st_mtime_ns != mtime
 
 
 def test_plan_is_deterministic_and_chunks_cover():

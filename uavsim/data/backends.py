@@ -34,6 +34,29 @@ from uavsim.errors import UserError
 
 # --- resume state ---------------------------------------------------------------------------------
 
+def finished_file(out: Path, plan: Plan) -> bool:
+    """Whether ``out`` is already the complete file of ``plan``: a lateral run (one file per
+    attitude class) interrupted after some files continues without making them again.
+
+    The key is the chunks' resume key (recipe, attitude class, relay reading) and the grid the
+    file was made over; a file of another recipe, grid or reading is made again.
+    """
+    if not out.exists():
+        return False
+    import h5py
+
+    try:
+        with h5py.File(out, "r") as f:
+            a = dict(f.attrs)
+    except OSError:
+        return False
+    att = a.get("att_class")
+    return (a.get("complete") is not None and bool(a["complete"]) and a.get("format") == FORMAT
+            and a.get("recipe") == plan.recipe.text and int(a.get("seed", -1)) == plan.recipe.seed
+            and a.get("grid_hash") == (plan.grid.hash or "") and a.get("relay_reading") == READING
+            and (None if att is None else int(att)) == plan.att_class)
+
+
 class ResumeState:
     """Finished chunks of one output file, saved atomically under ``OUT.resume/``."""
 

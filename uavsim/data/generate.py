@@ -70,6 +70,7 @@ from uavsim.data.backends import (
     ResumeState,
     cluster_versions,
     dask_client,
+    finished_file,
     git_commit,
     run_dask,
     run_threads,
@@ -174,6 +175,11 @@ def generate(recipe: Recipe, out_path: str | Path | None = None, *, backend: str
         run_versions = cluster_versions(client) if client is not None else None
         for att, out in output_paths(recipe, out_path, grid):
             plan = make_plan(recipe, grid, att)
+            if att is not None and finished_file(out, plan):
+                summary["files"].append(str(out))
+                if progress:
+                    print(f"generate {out.name}: complete from this recipe and grid, kept", file=sys.stderr, flush=True)
+                continue
             state = ResumeState(out, plan)
             done = state.done()
             todo = [i for i in range(len(plan.chunks)) if i not in done]
