@@ -52,7 +52,7 @@ def _script(monkeypatch, answers):
     """Replace run_gap by a scripted search: answers[k] = (effect, gap_before, gap_after) of search k."""
     calls = []
 
-    def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None):
+    def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None, **kw):
         effect, gb, ga = answers[len(calls)]
         calls.append({"effects": [e.name for e in session.effects], "candidates": candidates})
         sims = [_sim(r.data.t, r.data.y, r.data.u) for r in session.runs]
@@ -97,9 +97,11 @@ def test_none_below_the_threshold_unexplained_above(monkeypatch, gap, answer):
 
 
 def test_altitude_has_its_own_threshold(monkeypatch):
-    gap = 0.5 * (iterate.NONE_GAP["attitude"] + iterate.NONE_GAP["altitude"])
-    _script(monkeypatch, [("none", gap, gap)])
-    assert iterate.analyse(_session(loop="altitude")).answer == "none"
+    lo, hi = sorted((iterate.NONE_GAP["attitude"], iterate.NONE_GAP["altitude"]))
+    gap = 0.5 * (lo + hi)
+    _script(monkeypatch, [("none", gap, gap), ("none", gap, gap)])
+    answers = {loop: iterate.analyse(_session(loop=loop)).answer for loop in ("altitude", "pitch")}
+    assert sorted(answers.values()) == ["none", "unexplained"]
 
 
 def test_absorbed_reads_the_move_of_tau_off_the_identification():
@@ -282,3 +284,23 @@ def test_cli_identifies_when_the_session_has_no_model(monkeypatch, tmp_path, cap
     assert "no [model]: base model identified from r0.csv" in out.err
     j = json.loads(out.out)
     assert (j["answer"], j["base_source"], j["effect"]) == ("none", "identified", "none")
+
+
+def test_identified_naming_needs_a_gap_beyond_a_clean_sessions():
+    none_gap = iterate.NONE_GAP["attitude"]
+    # within what a clean session leaves: a candidate that halves it names nothing
+    assert not iterate.accepts(0.9 * none_gap, 0.3 * none_gap, "pitch")
+    # the same halving of a session's model's gap is named (the single search's own rule)
+    assert iterate.accepts(0.9 * none_gap, 0.3 * none_gap, "pitch", identified=False)
+    # beyond it: most of the gap, or enough of it to leave no more than a clean session
+    assert iterate.accepts(3.0 * none_gap, 1.1 * none_gap, "pitch")
+    assert iterate.accepts(1.5 * none_gap, 0.85 * none_gap, "pitch")
+    assert not iterate.accepts(1.5 * none_gap, 1.05 * none_gap, "pitch")
+    assert not iterate.accepts(3.0 * none_gap, 1.5 * none_gap, "pitch")
+
+
+def test_declined_proposal_keeps_the_searchs_model(monkeypatch):
+    _script(monkeypatch, [("rate_limit", 10.0, 7.0)])  # a proposal that removes 30%: not named
+    flow = iterate.analyse(_session())
+    assert flow.answer == "unexplained" and flow.found == [] and flow.steps[0].effect == "none"
+    assert flow.gap_after == 10.0 and flow.steps[0].ranking[0]["effect"] == "rate_limit"

@@ -222,3 +222,51 @@ def test_step_onset_is_dead_time_from_the_level_at_the_step():
         y = 0.2 + np.where(t >= 1.0 + dead, 1 - np.exp(-(t - 1.0 - dead) / 0.05), 0.0)  # starts from 0.2
         f = run_features(spec, t, y, np.zeros_like(t))
         assert math.exp(f["onset"]) == pytest.approx(dead + 0.05 * math.log(1 / 0.95), abs=0.02)
+
+
+def _noisy_features(noise, rng, repeat_every=1):
+    spec = RunSpec("a.csv", "mrft", beta=-0.5, h=1.0)
+    t, y, u = _relay(cycles=20)
+    y = y + noise
+    if repeat_every > 1:  # a staircase: every sample repeated
+        y = np.repeat(y[::repeat_every], repeat_every)[: t.size]
+    return run_features(spec, t, y, u)
+
+
+def test_smoother_measurement_is_the_sensors_rougher_stays_evidence():
+    from uavsim.gap.features import noise_offsets, noise_scales
+
+    rng = np.random.default_rng(0)
+    n = int(20 * 0.5 * 200)
+    white = [_noisy_features(0.02 * rng.standard_normal(n), rng) for _ in range(3)]
+    scales = noise_scales([[f] for f in white])
+    # the same std, filtered (a sensor's low-pass): much smaller second difference
+    k = np.ones(8) / 8
+    smooth = np.convolve(0.02 * rng.standard_normal(n + 7) * math.sqrt(8), k, mode="valid")
+    fm = _noisy_features(smooth, rng)
+    off = noise_offsets([fm], [[f] for f in white], scales)
+    assert off[0]["resid"] < -0.5
+    z = compare([fm], [white[0]], scales, off)
+    assert abs(z[(0, "resid")]) < 3 < abs(compare([fm], [white[0]], scales)[(0, "resid")])
+    # rougher than the model (extra noise) is kept as evidence
+    rough = _noisy_features(0.08 * rng.standard_normal(n), rng)
+    assert noise_offsets([rough], [[f] for f in white], scales) == [{}]
+    # a staircase's flat second difference is quantization or a hold, not a filter
+    stair = _noisy_features(0.02 * rng.standard_normal(n), rng, repeat_every=3)
+    assert stair["repeat"] > 0.5 and noise_offsets([stair], [[f] for f in white], scales) == [{}]
+
+
+def test_lag_like_candidates_take_their_phase_out_of_tau():
+    from uavsim.gap.workflow import _Evaluator, candidate_phase
+
+    assert candidate_phase("lag", 0.05, 1.0 / (2 * math.pi * 0.05)) == pytest.approx(math.pi / 4)
+    assert candidate_phase("lowpass", 10.0, 10.0) == pytest.approx(math.pi / 2)
+    assert candidate_phase("delay", 0.05, 2.0) == 0.0
+    session, _ = hidden_session(3, effect="none")
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.02, noise_std=0.0)
+    ev = _Evaluator(session, model, {}, 0, 1, 0.001, anchor_hz=2.0)
+    w = 2 * math.pi * 2.0
+    assert ev.tau_shift("lag", 0.01) == pytest.approx(math.atan(w * 0.01) / w)
+    assert ev.tau_shift("lag", 1.0) == pytest.approx(0.02)  # never below tau = 0
+    assert ev.tau_shift("delay", 0.01) == 0.0
+    assert _Evaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0

@@ -58,7 +58,7 @@ import numpy as np
 from uavsim.formats.session import STEP_RUN, RunSpec
 from uavsim.noise.analysis import cycle_harmonics, relay_phase
 
-__all__ = ["FLOORS", "DISTANCES", "run_features", "compare", "gap_value", "worst_window"]
+__all__ = ["FLOORS", "DISTANCES", "SMOOTHER", "run_features", "compare", "gap_value", "noise_offsets", "worst_window"]
 
 # Smallest scale of each feature (what a perfect model still misses: sampling
 # of the switching at the control rate, finite record), in feature units.
@@ -69,6 +69,12 @@ FLOORS: dict[str, float] = {
 }  # fmt: skip
 # Features that are distances between two runs (need both waveforms), not values.
 DISTANCES = ("shape", "trace")
+# Noise-level features whose deficit (measured smoother than the model's white noise of the same
+# std) is the sensor's filtering (a DLPF, a Kalman filter), not an effect: see :func:`noise_offsets`.
+SMOOTHER = ("resid",)
+# Share of samples equal to the one before above which a measurement is a staircase (quantized or
+# held): its second difference is small because it is mostly zero, not because a filter smoothed it.
+STAIRCASE = 0.2
 # Features that are angles, rad: differences are wrapped to [-pi, pi).
 ANGLES = ("phase1", "r3arg")
 # Below this |U3 / U1| the relay has too little 3rd harmonic for ``R3``
@@ -211,13 +217,16 @@ def _names(f: dict) -> list[str]:
 
 
 def compare(meas: Sequence[dict | None], sim: Sequence[dict | None],
-            scales: Sequence[dict[str, float]] | None = None) -> dict[tuple[int, str], float]:
+            scales: Sequence[dict[str, float]] | None = None,
+            offsets: Sequence[dict[str, float]] | None = None) -> dict[tuple[int, str], float]:
     """z-score of every (run, feature) between measured and simulated features.
 
     Parameters
     ----------
     meas, sim : sequences of feature dicts (or None), one per run
     scales : per run, feature -> extra scale from noise (added in quadrature to :data:`FLOORS`)
+    offsets : per run, feature -> measured-minus-simulated difference that is not the model's
+        (:func:`noise_offsets`), taken off before scaling
 
     Returns
     -------
@@ -234,6 +243,7 @@ def compare(meas: Sequence[dict | None], sim: Sequence[dict | None],
             z[(i, "period")] = 30.0
             continue
         sc = scales[i] if scales is not None and scales[i] is not None else {}
+        off = offsets[i] if offsets is not None and offsets[i] is not None else {}
         for name in _names(fm):
             s = math.hypot(FLOORS[name], sc.get(name, 0.0))
             if name in DISTANCES:
@@ -244,7 +254,7 @@ def compare(meas: Sequence[dict | None], sim: Sequence[dict | None],
                     continue
                 if name in ANGLES:
                     d = _wrap(d)
-                z[(i, name)] = d / s
+                z[(i, name)] = (d - off.get(name, 0.0)) / s
     return z
 
 
@@ -273,6 +283,49 @@ def noise_scales(sims_by_seed: Sequence[Sequence[dict | None]]) -> list[dict[str
                     v = [_wrap(x - v[0]) for x in v]
                 sc[name] = float(np.std(v, ddof=1))
         out.append(sc)
+    return out
+
+
+def noise_offsets(meas: Sequence[dict | None], sims_by_seed: Sequence[Sequence[dict | None]],
+                  scales: Sequence[dict[str, float]]) -> list[dict[str, float]]:
+    """Per run, the part of the :data:`SMOOTHER` features' difference that is the sensor's colour.
+
+    The workflow simulates white measurement noise of the measured std. A real
+    sensor's noise is filtered (a DLPF, a camera + IMU Kalman filter): at the
+    same std its second difference is much smaller, so the base model's noise
+    looks too rough in every run, which no effect but a low-pass explains. A
+    measured level *below* the base model's (by more than noise and the floor)
+    is taken as the sensor's and taken off every model's comparison; a level
+    above it (extra noise, quantization hops) stays evidence, and so does a
+    staircase (:data:`STAIRCASE`: quantization or a hold flattens the second
+    difference without filtering).
+
+    Parameters
+    ----------
+    meas : per run, the measured features (or None)
+    sims_by_seed : over seeds, per run, the base model's simulated features
+    scales : per run, :func:`noise_scales` of those simulations
+
+    Returns
+    -------
+    list of dict
+        Per run, feature -> offset (feature units, <= 0), to pass to :func:`compare`.
+    """
+    out: list[dict[str, float]] = []
+    for i, fm in enumerate(meas):
+        off: dict[str, float] = {}
+        fs = [s[i] for s in sims_by_seed if s[i] is not None]
+        if fm is not None and fs:
+            if fm.get("repeat", 0.0) >= STAIRCASE:  # a staircase (quantization, a hold) is not a filter
+                out.append(off)
+                continue
+            for name in SMOOTHER:
+                if name not in fm:
+                    continue
+                d = fm[name] - float(np.mean([f[name] for f in fs]))
+                if d < -math.hypot(FLOORS[name], scales[i].get(name, 0.0)):
+                    off[name] = d
+        out.append(off)
     return out
 
 

@@ -20,6 +20,7 @@ that flies sessions everywhere else.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -58,12 +59,17 @@ class Episode:
     seed : int
         Index of the noise realization (episodes with equal seeds still draw
         different numbers: one generator feeds the whole batch).
+    tau_shift : float
+        Taken off the model's ``tau`` for this episode, s (``tau`` stays >= 0):
+        a candidate that adds phase where the model's ``tau`` was fitted takes
+        that phase back out of it.
     """
 
     run: int
     effect: str = "none"
     value: float = 0.0
     seed: int = 0
+    tau_shift: float = 0.0
 
 
 @dataclass
@@ -226,7 +232,8 @@ def simulate(
     names = [e.effect for e in plans]
     values = [e.value for e in plans]
     fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
-    lb = LoopBatch([p] * len(plans), dt=dt, rate_hz=rate, effects=fx, seed=seed, nthread=nthread)
+    ps = [p if e.tau_shift == 0.0 else dataclasses.replace(p, tau=max(p.tau - e.tau_shift, 0.0)) for e in plans]
+    lb = LoopBatch(ps, dt=dt, rate_hz=rate, effects=fx, seed=seed, nthread=nthread)
     ref = np.stack([run_reference(session.runs[e.run], T, rate) for e in plans])
     res = lb.run(SessionController(session.runs, plans, rate, session.reading), T / rate, reference=ref)
     out = []

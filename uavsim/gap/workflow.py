@@ -5,14 +5,19 @@
    controller and the model's noise, with several noise seeds. Each run is
    reduced to features (:mod:`uavsim.gap.features`), measured and simulated
    features are turned into z-scores scaled by what noise explains, and the
-   gap is their RMS (about 1 or less when only noise separates them).
+   gap is their RMS (about 1 or less when only noise separates them). A
+   measured noise smoother than the model's white noise is the sensor's
+   filtering, taken off every comparison
+   (:func:`uavsim.gap.features.noise_offsets`).
 2. **Candidates.** Every vocabulary effect has one parameter. A coarse
    log-spaced grid of each (scaled to the session: period, relay amplitudes,
    oscillation amplitude, noise level) is simulated in *one* batch, then the
    best three candidates get a finer grid around their best value. The best
    value is refined by a parabola through the three best grid points (in the
    parameter's log). Each candidate's score is its remaining gap plus a
-   complexity penalty of :data:`PENALTY` per parameter.
+   complexity penalty of :data:`PENALTY` per parameter. With an identified
+   model (``phase_anchor_hz``), lag-like candidates take the phase they add at
+   the identified cycle out of its ``tau``.
 3. **Decision.** ``none`` when the gap before is within what noise explains
    (:data:`NONE_GAP`), when no candidate's score beats it, or when the best
    candidate leaves more than :data:`NAME_RATIO` of it (no single effect of
@@ -47,7 +52,14 @@ from uavsim.formats.session import (
     SessionError,
     validate_model,
 )
-from uavsim.gap.features import compare, gap_value, noise_scales, run_features, worst_window
+from uavsim.gap.features import (
+    compare,
+    gap_value,
+    noise_offsets,
+    noise_scales,
+    run_features,
+    worst_window,
+)
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
@@ -67,6 +79,19 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
+#: linear candidates whose phase at the base model's anchor frequency is taken out of its ``tau``
+#: (``run_gap(phase_anchor_hz=...)``: an identified model already holds their phase in ``tau``)
+PHASE_EFFECTS = ("lag", "lowpass")
+
+
+def candidate_phase(name: str, value: float, freq_hz: float) -> float:
+    """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (0 for the others)."""
+    if name == "lag":
+        return math.atan(2 * math.pi * freq_hz * value)
+    if name == "lowpass":  # 2nd-order Butterworth
+        x = freq_hz / value
+        return math.atan2(math.sqrt(2.0) * x, 1.0 - x * x)
+    return 0.0
 
 
 class UnflownRun(UserError):
@@ -216,27 +241,36 @@ class _Evaluator:
     """Simulates episodes and scores them against the measured features."""
 
     def __init__(self, session: Session, model: ModelSpec, base: dict[str, float], seed: int, nthread: int,
-                 dt: float):
+                 dt: float, anchor_hz: float | None = None):
         self.session, self.model, self.base, self.seed, self.nthread = session, model, base, seed, nthread
-        self.dt = dt
+        self.dt, self.anchor_hz = dt, anchor_hz
         self.R = len(session.runs)
         self.meas = [run_features(r.spec, r.data.t, r.data.y, r.data.u) for r in session.runs]
         self.scales: list[dict[str, float]] | None = None
+        self.offsets: list[dict[str, float]] | None = None
         self.calls = 0
 
     def sims(self, cands: list[tuple[str, float]], seeds: int = 1) -> list[list[SimRun]]:
         """Per (candidate, seed), the simulated runs."""
-        plans = [Episode(i, name, float(v), s) for name, v in cands for s in range(seeds) for i in range(self.R)]
+        plans = [Episode(i, name, float(v), s, self.tau_shift(name, float(v)))
+                 for name, v in cands for s in range(seeds) for i in range(self.R)]  # fmt: skip
         self.calls += 1
         out = simulate(self.session, self.model, plans, seed=self.seed * 1000 + self.calls,
                        nthread=self.nthread, base_effects=self.base, dt=self.dt)  # fmt: skip
         return [out[k * self.R:(k + 1) * self.R] for k in range(len(cands) * seeds)]
 
+    def tau_shift(self, name: str, value: float) -> float:
+        """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
+        if not self.anchor_hz or name not in PHASE_EFFECTS:
+            return 0.0
+        w = 2 * math.pi * self.anchor_hz
+        return min(candidate_phase(name, value, self.anchor_hz) / w, float(self.model.tau))
+
     def features(self, sims: list[SimRun]) -> list[dict | None]:
         return [run_features(r.spec, s.t, s.y, s.u) for r, s in zip(self.session.runs, sims, strict=True)]
 
     def gap(self, feats: list[dict | None]) -> float:
-        return gap_value(compare(self.meas, feats, self.scales))
+        return gap_value(compare(self.meas, feats, self.scales, self.offsets))
 
     def seed_gap(self, sims_by_seed: list[list[SimRun]]) -> float:
         """Mean gap over noise seeds of one model, noise scales widened by that model's own seed spread."""
@@ -244,7 +278,7 @@ class _Evaluator:
         own = noise_scales(fv)
         sc = [{k: math.hypot(a.get(k, 0.0), b.get(k, 0.0)) for k in set(a) | set(b)}
               for a, b in zip(self.scales, own, strict=True)]  # fmt: skip
-        return float(np.mean([gap_value(compare(self.meas, f, sc)) for f in fv]))
+        return float(np.mean([gap_value(compare(self.meas, f, sc, self.offsets)) for f in fv]))
 
 
 def _polish(ev: _Evaluator, effect: str, value: float, rate_hz: float) -> tuple[float, float, list[SimRun]]:
@@ -304,6 +338,9 @@ def run_gap(
     fine: int = 7,
     dt: float = 0.001,
     candidates: tuple[str, ...] = CANDIDATES,
+    smoother_sensor: bool = True,
+    name_ratio: float = NAME_RATIO,
+    phase_anchor_hz: float | None = None,
     log=None,
 ) -> GapResult:
     """Run the whole gap workflow on a session.
@@ -327,6 +364,19 @@ def run_gap(
         are much slower; half the cost of the 0.5 ms default).
     candidates : tuple of str
         Vocabulary effects to try (default: all).
+    smoother_sensor : bool
+        Take a measured noise smoother than the model's white noise as the
+        sensor's filtering, not as evidence
+        (:func:`uavsim.gap.features.noise_offsets`).
+    name_ratio : float
+        The best candidate is named only when its gap is at most this share of
+        the gap before (default :data:`NAME_RATIO`).
+    phase_anchor_hz : float, optional
+        Frequency at which the model's ``tau`` was fitted to a measured cycle
+        (an identified model: the relay run's): the :data:`PHASE_EFFECTS`
+        candidates take their phase there out of ``tau`` (down to 0), so that
+        the model keeps the measured phase and only the candidate's shape is
+        tested; a winner's result carries the model with the shorter ``tau``.
     log : callable(str), optional
         Progress messages.
 
@@ -352,7 +402,7 @@ def run_gap(
         if e.name in base:
             raise SessionError(f"session.toml: effect {e.name!r} listed twice (the gap workflow needs one of each)")
         base[e.name] = float(e.params[EFFECT_PARAMS[e.name][0]])
-    ev = _Evaluator(session, model, base, seed, nthread, dt)
+    ev = _Evaluator(session, model, base, seed, nthread, dt, phase_anchor_hz)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
@@ -372,9 +422,11 @@ def run_gap(
         if f is None:
             raise UnflownRun(i, f"run {i} ({r.spec.file}): the model's step response diverges; check the model")
     ev.scales = noise_scales(fb)
+    if smoother_sensor:
+        ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
     gaps_before = [ev.gap(f) for f in fb]
     gap_before = float(np.mean(gaps_before))
-    z = compare(ev.meas, fb[0], ev.scales)
+    z = compare(ev.meas, fb[0], ev.scales, ev.offsets)
     disagreements = []
     for (i, feat), zv in sorted(z.items(), key=lambda kv: -abs(kv[1]))[:8]:
         if abs(zv) < 2.0:
@@ -439,7 +491,7 @@ def run_gap(
     winner = ranking[0]
     # name an effect only when it explains most of the gap: a gap within noise,
     # or one that no single effect closes, is answered ``none``
-    if gap_before <= NONE_GAP or winner["gap"] > NAME_RATIO * gap_before:
+    if gap_before <= NONE_GAP or winner["gap"] > name_ratio * gap_before:
         winner = ranking[[r["effect"] for r in ranking].index("none")]
     effect = winner["effect"]
     if effect == "none":
@@ -456,6 +508,10 @@ def run_gap(
         log(f"winner polished ({time.perf_counter() - t_start:.1f} s)")
         effects = [e for e in session.effects if e.name != effect]
         effects.append(EffectSpec(effect, dict(winner["params"])))
+        shift = ev.tau_shift(effect, float(next(iter(winner["params"].values()))))
+        if shift:
+            log(f"{effect} takes {shift * 1e3:.1f} ms of phase out of tau ({model.tau * 1e3:.1f} ms)")
+            model = dataclasses.replace(model, tau=max(float(model.tau) - shift, 0.0))
     return GapResult(
         effect=effect,
         params=dict(winner["params"]),

@@ -87,6 +87,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
+                "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
                 "identified": {k: j["base_model"][k] for k in ("K", "T_prop", "T1", "tau", "noise_std")},
                 "identification": ({k: flow.identification.get(k) for k in ("class", "class_params", "params", "oscillation")}
                                    if flow.identification else None),
