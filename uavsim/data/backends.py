@@ -28,7 +28,7 @@ import numpy as np
 from uavsim.control.relay import READING
 from uavsim.cpus import available_cpus
 from uavsim.data.episodes import chunk_task, run_chunk
-from uavsim.data.h5 import FORMAT
+from uavsim.data.h5 import FORMAT, open_dataset
 from uavsim.data.plan import Plan
 from uavsim.errors import UserError
 
@@ -38,21 +38,18 @@ def finished_file(out: Path, plan: Plan) -> bool:
     """Whether ``out`` is already the complete file of ``plan``: a lateral run (one file per
     attitude class) interrupted after some files continues without making them again.
 
-    The key is the chunks' resume key (recipe, attitude class, relay reading) and the grid the
+    The file must pass ``open_dataset``'s checks (format, complete, its arrays), and its key
+    must be the chunks' resume key (recipe, attitude class, relay reading) and the grid the
     file was made over; a file of another recipe, grid or reading is made again.
     """
     if not out.exists():
         return False
-    import h5py
-
     try:
-        with h5py.File(out, "r") as f:
-            a = dict(f.attrs)
-    except OSError:
+        a = open_dataset(out).attrs
+    except UserError:
         return False
     att = a.get("att_class")
-    return (a.get("complete") is not None and bool(a["complete"]) and a.get("format") == FORMAT
-            and a.get("recipe") == plan.recipe.text and int(a.get("seed", -1)) == plan.recipe.seed
+    return (a.get("recipe") == plan.recipe.text and int(a.get("seed", -1)) == plan.recipe.seed
             and a.get("grid_hash") == (plan.grid.hash or "") and a.get("relay_reading") == READING
             and (None if att is None else int(att)) == plan.att_class)
 
