@@ -91,6 +91,11 @@ _SCALES = (1.0, 0.7, 0.5, 0.35, 0.25)
 _N_RULE = 40
 
 
+#: the gain estimate the cover's J and the table's J assume (``uavsim.tuning.sensitivity.SCALINGS``):
+#: identification's, fitted at each process's own cycle frequency
+GAIN_SCALING = "response"
+
+
 def beta_min(tau_obs: float, period) -> np.ndarray:
     """NP-MRFT's lowest beta for an observation time and a cycle period: ``-1 + sin(2 pi tau_obs / T0)``."""
     x = np.minimum(2.0 * math.pi * tau_obs / np.asarray(period, dtype=float), math.pi / 2)
@@ -197,7 +202,7 @@ def _pair_J(att: dict, X: np.ndarray, o, rate_hz: float, window: float, pairs=No
     ci, pj = np.nonzero(np.abs(lw[:, None] - lw[None, :]) <= window) if pairs is None else pairs
     pp = _params(X, att)
     Jv = j_of_points("lateral", rate_hz, pp, o.omega, o.ise, {k: v for k, v in pp.items() if k != "K"}, o.omega,
-                     o.kp, o.kd, o.N, pairs=(ci, pj), scaling="response")
+                     o.kp, o.kd, o.N, pairs=(ci, pj), scaling=GAIN_SCALING)
     J = np.full((P, P), J_MAX)
     J[ci, pj] = Jv
     np.fill_diagonal(J, 1.0)
@@ -284,7 +289,7 @@ def design_subgrid(att: dict, rng: np.random.Generator, rate_hz: float = DEFAULT
                omega_df=g["omega"], J=np.ones((len(cls), len(cls))), beta=beta, pm_deg=rule.pm_deg, c1=c1, c3=c3,
                built=built, gain_scale=rule.gain_scale, attitude=att, neighbours=[[int(i), int(k)] for i, k in nb])
     # the sub-grid's J: the table's, of its robust answers
-    t = build_flat_table("lateral", rate_hz, sub, {k: v for k, v in pc.items() if k != "K"}, {}, att)
+    t = build_flat_table("lateral", rate_hz, sub, {k: v for k, v in pc.items() if k != "K"}, {}, att, scaling=GAIN_SCALING)
     sub.J = t.J_robust
     built["build_time_s"] = round(time.time() - t0, 1)
     return sub
@@ -322,7 +327,7 @@ def build_lateral(seed: int = 0, rate_hz: float = DEFAULT_RATE_HZ, log=None, att
              "neighbour_J": kw.get("neighbour_J", NEIGHBOUR_J), "n_samples": kw.get("n_samples", N_SAMPLES),
              "method": "per attitude class over its attitude table PD sampled at the rate: beta the lowest NP-MRFT "
                        "allows tau_obs on the fastest cycle; classes a greedy cover of a box sample by the table's "
-                       "J (optima, response gain estimate); neighbours the two best classes per sample point; J the "
+                       f"J (optima, {GAIN_SCALING} gain estimate); neighbours the two best classes per sample point; J the "
                        "robust answers'",
              "lateral_rules": [[s.beta, s.pm_deg, s.gain_scale] for s in subs]}
     g = Grid(loop="lateral", version=GRID_VERSION, params={}, kp=np.zeros(0), kd=np.zeros(0),

@@ -365,6 +365,13 @@ def build_flat_table(fam: str, rate_hz: float, grid: Grid, cparams: dict[str, An
                         attitude=attitude)
 
 
+def grid_gain_scaling(grid: Grid) -> str:
+    """The gain estimate a lateral grid was designed with, read from its ``built["method"]``
+    (grids designed before it was written there used the MRFT-point estimate, ``"mrft"``)."""
+    method = str(grid.built.get("method", ""))
+    return "mrft" if "mrft gain estimate" in method or "gain estimate" not in method else "response"
+
+
 def lateral_attitude(att_table: OptimalTable, att_grid: Grid, a: int) -> dict[str, float]:
     """Attitude class ``a`` with the table's attitude PD (unit gain) that closes the lateral loop over it.
 
@@ -403,15 +410,13 @@ def build_table(family: str, rate_hz: float = DEFAULT_RATE_HZ, *, grid: Grid | N
     built.update(attitude_pd_hash=att_table.pd_hash, attitude_grid_hash=att_grid.hash,
                  attitude_loop="each attitude class closed by its attitude table PD at the same rate")
     subs = []
+    scaling = grid_gain_scaling(grid)  # a grid's table keeps the gain estimate its cover was chosen with
     for a, sg in enumerate(grid.sub):
         att = lateral_attitude(att_table, att_grid, a)
         cparams = {"T_prop": att["T_prop"], "T1": att["T1"], "tau": np.asarray(sg.params["tau"], float),
                    "T2": np.asarray(sg.params["T2"], float), "tau_in": att["tau_in"], "att_kp": att["att_kp"],
                    "att_kd": att["att_kd"], "att_N": 2.0 * math.pi * att["att_filter_hz"], "att_rate_hz": att["rate_hz"]}
         ts = time.time()
-        # a grid whose classes were chosen as a cover by the J of the MRFT-point gain estimate keeps
-        # that estimate (its method says which; ``uavsim.tuning.lateral_grid``)
-        scaling = "mrft" if "mrft gain estimate" in str(grid.built.get("method", "")) else "response"
         subs.append(build_flat_table("lateral", rate_hz, sg, cparams, {"build_time_s": 0.0}, att, scaling=scaling))
         subs[-1].grid_hash = grid.hash
         subs[-1].built["build_time_s"] = round(time.time() - ts, 1)
