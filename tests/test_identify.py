@@ -426,3 +426,39 @@ def test_phase_lead_of_relay_cycles_and_early_switching():
 
 def test_no_oscillation_is_a_user_error():
     assert issubclass(NoOscillation, UserError)
+
+
+def test_fitted_decision_judges_candidates_on_the_measured_process():
+    """Exact relay cycles of grid classes, a belief sure of the true class: the fitted decision
+    answers the candidate of least ISE on the process fitted to the cycle, so its answer's J on the
+    true process is no worse than the grid decision's (both exact sampled ISEs at 200 Hz)."""
+    from dataclasses import replace as dc_replace
+
+    from uavsim.data.generate import class_table_gains
+    from uavsim.data.preprocess import input_length
+    from uavsim.ident.evaluate import _score
+    from uavsim.ident.session import identify_arrays
+    from uavsim.lumped.simulate import simulate_relay_batch
+    from uavsim.tuning.optimal import optimal_gains
+
+    g, b = _grid_bundle("attitude", 0)
+    b = dc_replace(b, cost=class_table_gains("attitude", 200.0, None)["J"], temperature=0.05)
+    L = input_length(g)
+    b.input_length = b.predictor.input_length = L
+    rng = np.random.default_rng(3)
+    cs = rng.choice(g.n, 4, replace=False)
+    K = np.exp(rng.uniform(np.log(0.5), np.log(2.0), cs.size))
+    truth = {"K": K, **{k: b.classes[k][cs] for k in ("T_prop", "T1", "tau")}}
+    sim = simulate_relay_batch("attitude", g.beta, 1.0, 0.005, int(8 * g.period[cs].max() * 200), **truth)
+    q_opt = optimal_gains("attitude", 200.0, rule=b.rule, **truth).ise
+    for j, c in enumerate(cs):
+        b.predictor.cls = int(c)
+        J = {}
+        for dec in ("bayes", "fitted"):
+            ans = identify_arrays(-sim["e"][j], sim["u"][j], rate_hz=200.0, h=1.0, bias=0.0, bundle=b,
+                                  beta=g.beta, decision=dec)
+            assert ans["decision"]["decision"] == dec
+            gn = ans["gains"]
+            J[dec] = _score("attitude", 200.0, truth, q_opt, np.array([j]), gn["kp"], gn["kd"],
+                            gn["derivative_filter_hz"])[0]
+        assert np.isfinite(J["fitted"]) and J["fitted"] <= J["bayes"] * (1 + 1e-6) and J["fitted"] < 1.05

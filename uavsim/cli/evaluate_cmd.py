@@ -39,7 +39,7 @@ def register(subparsers) -> None:
     p.add_argument("--att-classes", help="lateral: comma-separated attitude classes (default: every network)")
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="identification's fitted-model optimum mode (default never: the table path)")
-    p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
+    p.add_argument("--decision", choices=["bayes", "argmax", "fitted"], default=None,
                    help="identification's class decision (default: the bundle's, the trainer's choice); the "
                         "rows answer_bayes and answer_argmax score both in the same run")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")

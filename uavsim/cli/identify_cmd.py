@@ -41,9 +41,10 @@ def register(subparsers) -> None:
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="also optimize the identified model's PD at the control rate (~10-20 ms) and answer it "
                         "when the model is off the grid (auto) or always (default never: the table's answer)")
-    p.add_argument("--decision", choices=["bayes", "argmax"], default=None,
+    p.add_argument("--decision", choices=["bayes", "argmax", "fitted"], default=None,
                    help="class decision: least expected log J over the network's cost matrix (bayes) or the most likely "
-                        "class (argmax); default: the bundle's (the trainer's choice on validation)")
+                        "class (argmax), or the candidates judged on the top classes' models fitted to the measured cycle "
+                        "(fitted, a few ms); default: the bundle's (the trainer's choice on validation)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "

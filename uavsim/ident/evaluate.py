@@ -65,6 +65,7 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
+from uavsim.ident.select import decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
 from uavsim.lumped.params import RANGES, LumpedParams
@@ -326,6 +327,11 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
                 if gi.size:
                     c_dec = decide(ids["act"][gi], bundle.cost, decision=dec, temperature=bundle.temperature).cls
                     J["answer_" + dec][gi] = Jall[row, c_dec]
+            if bundle.cost is not None:  # the candidates judged on the belief's fitted models
+                J["answer_fitted"] = np.full(n, _FAIL)
+                if gi.size:
+                    c_fit = decide_fitted(bundle, ids["act"][gi], ids["response"][gi], ids["response_period"][gi]).cls
+                    J["answer_fitted"][gi] = Jall[row, c_fit]
     # alternatives on the identified episodes: the network's class with other gain choices
     for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum", "optimum_when_off_grid"):
         J[k] = nan()

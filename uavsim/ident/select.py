@@ -13,6 +13,17 @@ it is also what a bundle exported without ``J`` answers, and what the trainer
 exports as the decision where it had the lower mean log J on the validation set
 (``ModelBundle.decision``).
 
+``decision="fitted"`` judges the candidates on models of the measured process
+rather than on the grid's nominal classes: every class fits the one measured
+point (``fitted_model``: its lags with the gain and delay that put it on the
+cycle's response), so the belief's ``FITTED_BELIEFS`` most likely classes give
+as many plausible off-grid processes, and each of the ``FITTED_CANDIDATES``
+classes of least expected cost answers its robust table PD with its own gain
+estimate. The class answered has the least belief-weighted
+``log(ISE / best ISE)`` over those models (exact sampled ISE at the table's rate,
+clipped like ``J``). It needs the cycle's response and costs the candidates x
+beliefs lifted loops (a few ms: off the <= 2 ms table path, so not the default).
+
     from uavsim.ident.select import choose_class, decide_class
     d = decide_class(bundle, bundle.predictor.activations(x))       # Decision: cls, expected_J, p, decision
     cls = choose_class(bundle, bundle.predictor.activations(x), decision="argmax")     # (m,) int
@@ -26,21 +37,104 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle
 from uavsim.learning.decision import DECISIONS, Decision, decide
 
-__all__ = ["DECISIONS", "Decision", "decide_class", "choose_class"]
+__all__ = ["DECISIONS", "IDENT_DECISIONS", "FITTED_BELIEFS", "FITTED_CANDIDATES", "Decision", "decide_class",
+           "decide_fitted", "choose_class"]
+
+#: decisions identification answers: the trainer's two and the one over fitted models
+IDENT_DECISIONS = DECISIONS + ("fitted",)
+#: most likely classes whose fitted models the ``fitted`` decision judges on
+FITTED_BELIEFS = 8
+#: classes of least expected cost it chooses among
+FITTED_CANDIDATES = 10
 
 
-def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None) -> Decision:
+def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None,
+                 response=None, response_period=None) -> Decision:
     """The class decision for the network's activations (m, n) or (n,).
 
-    ``decision``: ``"bayes"``, ``"argmax"``, or None for the bundle's (``ModelBundle.decision``).
-    ``expected_J`` is that of the class answered (nan without a cost matrix).
+    ``decision``: ``"bayes"``, ``"argmax"``, ``"fitted"`` (needs ``response`` and
+    ``response_period``, (m,) each: ``decide_fitted``), or None for the bundle's
+    (``ModelBundle.decision``). ``expected_J`` is that of the class answered (nan without a
+    cost matrix).
     """
-    if decision is not None and decision not in DECISIONS:
-        raise UserError(f"decision must be one of {', '.join(DECISIONS)}, got {decision!r}")
+    if decision is not None and decision not in IDENT_DECISIONS:
+        raise UserError(f"decision must be one of {', '.join(IDENT_DECISIONS)}, got {decision!r}")
+    if decision == "fitted":
+        if response is None or response_period is None:
+            raise UserError("the fitted decision needs the cycle's response and its period")
+        return decide_fitted(bundle, activations, response, response_period)
     if decision == "bayes" and bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the Bayes decision "
                         "needs: retrain, or decide by argmax")
     return decide(activations, bundle.cost, decision=decision or bundle.decision, temperature=bundle.temperature)
+
+
+def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
+                  beliefs: int = FITTED_BELIEFS, candidates: int = FITTED_CANDIDATES) -> Decision:
+    """The class of least expected log ISE ratio over the belief's fitted models (module docstring).
+
+    Parameters
+    ----------
+    activations : (m, n) or (n,)
+        The network's activations.
+    response, response_period : (m,) complex, (m,) float
+        Each cycle's fundamental response and its period, s (``CycleFeatures``).
+    beliefs, candidates : int
+        Most likely classes judged on, classes of least expected cost chosen among.
+
+    Returns
+    -------
+    Decision
+        ``decision`` ``"fitted"``; ``expected_J`` the exp of the chosen class's expected log
+        ratio to the best candidate on each fitted model.
+    """
+    from uavsim.ident.gains import fitted_model, table_gains
+    from uavsim.learning.decision import COST_CLIP, expected_cost, softmax
+    from uavsim.lumped.sampled import lift, sampled_ise
+
+    if bundle.cost is None:
+        raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the fitted decision "
+                        "needs: retrain, or decide by argmax")
+    p = softmax(activations, bundle.temperature)
+    resp = np.atleast_1d(np.asarray(response, dtype=np.complex128))
+    per = np.atleast_1d(np.asarray(response_period, dtype=np.float64))
+    if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
+        raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
+    ec = expected_cost(p, bundle.cost)
+    keys = ("K", "T_prop", "T1", "tau") + (("T2", "tau_in", "att_kp", "att_kd") if bundle.loop == "lateral" else ())
+    cls = np.argmin(ec, axis=1)
+    score = np.zeros(p.shape[0])
+    for m in range(p.shape[0]):
+        bel = np.argsort(-p[m])[:beliefs]
+        cand = np.unique(np.concatenate([np.argsort(ec[m])[:candidates], [cls[m]]]))
+        model = fitted_model(bundle, bel, np.full(bel.size, resp[m]), np.full(bel.size, per[m]))
+        K_c = fitted_model(bundle, cand, np.full(cand.size, resp[m]), np.full(cand.size, per[m]))["K"]
+        g = table_gains(bundle, cand, K_c)
+        ci, bj = np.repeat(np.arange(cand.size), bel.size), np.tile(np.arange(bel.size), cand.size)
+        pk = {k: np.asarray(model[k], dtype=np.float64)[bj] for k in keys}
+        if bundle.loop == "lateral":
+            pk["att_N"] = 2.0 * np.pi * np.asarray(model["att_filter_hz"], dtype=np.float64)[bj]
+            if "att_rate_hz" in model:
+                pk["att_rate_hz"] = float(np.asarray(model["att_rate_hz"]).ravel()[0])
+        ok = (np.isfinite(pk["K"]) & (pk["K"] > 0) & np.isfinite(g["kp"][ci]) & (g["kp"][ci] > 0))
+        Q = np.full(ci.size, np.inf)
+        if ok.any():
+            with np.errstate(all="ignore"):
+                proc = lift(bundle.loop, bundle.rate_hz,
+                            **{k: (v[ok] if isinstance(v, np.ndarray) else v) for k, v in pk.items()})
+                Q[ok] = sampled_ise(proc, g["kp"][ci][ok], g["kd"][ci][ok],
+                                    2.0 * np.pi * g["derivative_filter_hz"][ci][ok])
+        Q = np.where(np.isfinite(Q) & (Q > 0), Q, np.inf).reshape(cand.size, bel.size)
+        best = Q.min(axis=0)
+        seen = np.isfinite(best)
+        if not seen.any():  # no candidate holds any fitted model: keep the grid's decision
+            score[m] = ec[m, cls[m]]
+            continue
+        w = p[m, bel][seen] / p[m, bel][seen].sum()
+        cost = np.log(np.clip(Q[:, seen] / best[seen], *COST_CLIP)) @ w
+        k = int(np.argmin(cost))
+        cls[m], score[m] = cand[k], cost[k]
+    return Decision(cls=cls.astype(np.int64), expected_J=np.exp(score), p=p, decision="fitted")
 
 
 def choose_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None) -> np.ndarray:

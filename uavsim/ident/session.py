@@ -73,7 +73,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Lateral only: the flight's attitude loop when known better than the bundle's
         (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
         fitted model and its optimum, not the table's answer.
-    decision : ``"bayes"``, ``"argmax"`` or None
+    decision : ``"bayes"``, ``"argmax"``, ``"fitted"`` or None
         The class decision (``uavsim.ident.select``); None: the bundle's (``ModelBundle.decision``).
 
     Returns
@@ -88,7 +88,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     act = bundle.predictor.activations(f.x)
-    dec = decide_class(bundle, act, decision=decision)
+    dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
+                       response_period=np.array([f.response_period]))
     c = int(dec.cls[0])
     model = fitted_model(bundle, [c], np.array([f.response]), np.array([f.response_period]), attitude=attitude)
     K_hat = model["K"]
