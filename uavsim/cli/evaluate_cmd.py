@@ -41,7 +41,7 @@ def register(subparsers) -> None:
                    help="identification's fitted-model optimum mode (default never: the table path)")
     p.add_argument("--decision", choices=["bayes", "argmax", "fitted"], default=None,
                    help="identification's class decision (default: the bundle's, the trainer's choice); the "
-                        "rows answer_bayes and answer_argmax score both in the same run")
+                        "rows answer_bayes, answer_argmax and answer_fitted score all three in the same run")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")

@@ -79,19 +79,11 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
-#: linear candidates whose phase at the base model's anchor frequency is taken out of its ``tau``
-#: (``run_gap(phase_anchor_hz=...)``: an identified model already holds their phase in ``tau``)
-PHASE_EFFECTS = ("lag", "lowpass")
-
-
 def candidate_phase(name: str, value: float, freq_hz: float) -> float:
-    """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (0 for the others)."""
-    if name == "lag":
-        return math.atan(2 * math.pi * freq_hz * value)
-    if name == "lowpass":  # 2nd-order Butterworth
-        x = freq_hz / value
-        return math.atan2(math.sqrt(2.0) * x, 1.0 - x * x)
-    return 0.0
+    """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (its vocabulary term's
+    ``phase``; 0 for effects without one)."""
+    phase = vocabulary.term(name).phase
+    return 0.0 if phase is None else float(phase(value, freq_hz))
 
 
 class UnflownRun(UserError):
@@ -261,7 +253,7 @@ class _Evaluator:
 
     def tau_shift(self, name: str, value: float) -> float:
         """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
-        if not self.anchor_hz or name not in PHASE_EFFECTS:
+        if not self.anchor_hz or vocabulary.term(name).phase is None:
             return 0.0
         w = 2 * math.pi * self.anchor_hz
         return min(candidate_phase(name, value, self.anchor_hz) / w, float(self.model.tau))
@@ -373,8 +365,8 @@ def run_gap(
         the gap before (default :data:`NAME_RATIO`).
     phase_anchor_hz : float, optional
         Frequency at which the model's ``tau`` was fitted to a measured cycle
-        (an identified model: the relay run's): the :data:`PHASE_EFFECTS`
-        candidates take their phase there out of ``tau`` (down to 0), so that
+        (an identified model: the relay run's): candidates whose vocabulary term has a ``phase``
+        (``lag``, ``lowpass``) take their phase there out of ``tau`` (down to 0), so that
         the model keeps the measured phase and only the candidate's shape is
         tested; a winner's result carries the model with the shorter ``tau``.
     log : callable(str), optional

@@ -84,6 +84,20 @@ def fitted_model(bundle: ModelBundle, cls, response, response_period, *,
                         rate_hz=bundle.input_rate_hz)
 
 
+def model_loop_params(bundle: ModelBundle, model: dict[str, np.ndarray]) -> dict:
+    """A fitted model's process parameters as ``lift`` and ``optimal_gains`` take them, (m,) arrays.
+
+    Lateral: the attitude PD's filter in rad/s (``att_N``) and its rate where it runs at one.
+    """
+    keys = ("K", "T_prop", "T1", "tau") + (("T2", "tau_in", "att_kp", "att_kd") if bundle.loop == "lateral" else ())
+    p = {k: np.atleast_1d(np.asarray(model[k], dtype=np.float64)) for k in keys}
+    if bundle.loop == "lateral":
+        p["att_N"] = 2.0 * math.pi * np.atleast_1d(np.asarray(model["att_filter_hz"], dtype=np.float64))
+        if "att_rate_hz" in model:
+            p["att_rate_hz"] = float(np.asarray(model["att_rate_hz"]).ravel()[0])
+    return p
+
+
 def model_optimum(bundle: ModelBundle, model: dict[str, np.ndarray], *, start: dict[str, np.ndarray] | None = None):
     """ISE-optimal PDs of fitted models at the bundle's control rate (``OptimalGains``, batched).
 
@@ -92,14 +106,8 @@ def model_optimum(bundle: ModelBundle, model: dict[str, np.ndarray], *, start: d
     """
     from uavsim.tuning.optimal import optimal_gains
 
-    keys = ("K", "T_prop", "T1", "tau") + (("T2", "tau_in", "att_kp", "att_kd") if bundle.loop == "lateral" else ())
-    p = {k: np.atleast_1d(np.asarray(model[k], dtype=np.float64)) for k in keys}
-    if bundle.loop == "lateral":
-        p["att_N"] = 2.0 * math.pi * np.atleast_1d(np.asarray(model["att_filter_hz"], dtype=np.float64))
-        if "att_rate_hz" in model:
-            p["att_rate_hz"] = float(np.asarray(model["att_rate_hz"]).ravel()[0])
     s = None if start is None else (np.atleast_1d(start["kp"]), np.atleast_1d(start["kd"]))
-    return optimal_gains(bundle.loop, bundle.rate_hz, rule=bundle.rule, start=s, **p)
+    return optimal_gains(bundle.loop, bundle.rate_hz, rule=bundle.rule, start=s, **model_loop_params(bundle, model))
 
 
 def measured_point_gains(response, response_period, *, rule: TuningRule, rate_hz: float = 200.0

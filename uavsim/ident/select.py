@@ -88,7 +88,7 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         ``decision`` ``"fitted"``; ``expected_J`` the exp of the chosen class's expected log
         ratio to the best candidate on each fitted model.
     """
-    from uavsim.ident.gains import fitted_model, table_gains
+    from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
     from uavsim.learning.decision import COST_CLIP, expected_cost, softmax
     from uavsim.lumped.sampled import lift, sampled_ise
 
@@ -101,21 +101,17 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
     if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
         raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
     ec = expected_cost(p, bundle.cost)
-    keys = ("K", "T_prop", "T1", "tau") + (("T2", "tau_in", "att_kp", "att_kd") if bundle.loop == "lateral" else ())
     cls = np.argmin(ec, axis=1)
     score = np.zeros(p.shape[0])
     for m in range(p.shape[0]):
         bel = np.argsort(-p[m])[:beliefs]
         cand = np.unique(np.concatenate([np.argsort(ec[m])[:candidates], [cls[m]]]))
-        model = fitted_model(bundle, bel, np.full(bel.size, resp[m]), np.full(bel.size, per[m]))
-        K_c = fitted_model(bundle, cand, np.full(cand.size, resp[m]), np.full(cand.size, per[m]))["K"]
-        g = table_gains(bundle, cand, K_c)
-        ci, bj = np.repeat(np.arange(cand.size), bel.size), np.tile(np.arange(bel.size), cand.size)
-        pk = {k: np.asarray(model[k], dtype=np.float64)[bj] for k in keys}
-        if bundle.loop == "lateral":
-            pk["att_N"] = 2.0 * np.pi * np.asarray(model["att_filter_hz"], dtype=np.float64)[bj]
-            if "att_rate_hz" in model:
-                pk["att_rate_hz"] = float(np.asarray(model["att_rate_hz"]).ravel()[0])
+        # one fit for every class involved: a belief's model, a candidate's gain estimate
+        both = np.union1d(bel, cand)
+        model = fitted_model(bundle, both, np.full(both.size, resp[m]), np.full(both.size, per[m]))
+        g = table_gains(bundle, cand, model["K"][np.searchsorted(both, cand)])
+        ci, bj = np.repeat(np.arange(cand.size), bel.size), np.tile(np.searchsorted(both, bel), cand.size)
+        pk = {k: (v[bj] if isinstance(v, np.ndarray) else v) for k, v in model_loop_params(bundle, model).items()}
         ok = (np.isfinite(pk["K"]) & (pk["K"] > 0) & np.isfinite(g["kp"][ci]) & (g["kp"][ci] > 0))
         Q = np.full(ci.size, np.inf)
         if ok.any():

@@ -84,6 +84,9 @@ class SessionTerm:
         The largest value worth fitting at a control rate (values above it act as the cap).
     identity_is_rate : bool
         The identity value is the control rate (a frame rate equal to it holds nothing).
+    phase : callable (value, freq_hz) -> float, optional
+        For a linear effect whose phase a fitted delay can hold: the phase lag (rad) it adds
+        at ``freq_hz``. The gap workflow takes it out of an identified model's ``tau``.
     """
 
     param: str
@@ -95,6 +98,7 @@ class SessionTerm:
     draw: Callable[[np.random.Generator, float, float, float, float, float], dict[str, float]]
     cap: Callable[[float], float] | None = None
     identity_is_rate: bool = False
+    phase: Callable[[float, float], float] | None = None
 
     def __post_init__(self) -> None:
         if self.range not in RANGES:

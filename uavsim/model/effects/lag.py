@@ -9,6 +9,7 @@ lag stage at all (the command passes unchanged, without the one-sample hold),
 so that episodes of a batch without the effect can share it.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,7 @@ class Lag(SignalEffect):
         param="T", range=">0", identity=0.0, table=2, chain=3,
         grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.01 * sc["period"], 0.3 * sc["period"], n),
         draw=lambda rng, period, h, amp, noise_std, rate_hz: {"T": rng.uniform(0.04, 0.12) * period},
+        phase=lambda T, freq_hz: math.atan(2 * math.pi * freq_hz * T),
     )
     target = "command"
 

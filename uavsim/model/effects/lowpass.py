@@ -17,6 +17,12 @@ from uavsim.model.effects.base import (
 )
 
 
+def _phase(cutoff_hz: float, freq_hz: float) -> float:
+    """Phase lag, rad, of the (continuous) 2nd-order Butterworth at ``freq_hz``."""
+    x = freq_hz / cutoff_hz
+    return math.atan2(math.sqrt(2.0) * x, 1.0 - x * x)
+
+
 def _draw(rng, period, h, amp, noise_std, rate_hz):
     f0 = 1.0 / period
     return {"cutoff_hz": float(min(f0 / rng.uniform(0.12, 0.35), 0.4 * rate_hz))}
@@ -39,6 +45,7 @@ class Lowpass(SignalEffect):
         grid=lambda sc, noise_std, rate_hz, n: np.geomspace(min(0.3 / sc["period"], 0.4 * rate_hz), 0.45 * rate_hz, n),
         draw=_draw,
         cap=lambda rate_hz: 0.45 * rate_hz,
+        phase=_phase,
     )
     target = "measurement"
 
