@@ -155,7 +155,7 @@ def test_lateral_without_grid_is_a_clear_error(tmp_path):
         generate(load_recipe(ROOT / "datasets" / "lateral.toml"), tmp_path / "lat.h5", progress=False)
 
 
-def test_lateral_one_file_per_attitude_class(tmp_path):
+def test_lateral_one_file_per_attitude_class(tmp_path, monkeypatch):
     from uavsim.tuning import grid as gridmod
 
     if not (gridmod._grid_dir() / "lateral.json").exists():
@@ -190,6 +190,11 @@ chunk = 4
     r2 = parse_recipe(text.replace("seed = 4", "seed = 5"), str(tmp_path / "lat.toml"), "lat")
     assert generate(r2, tmp_path / "lat.h5", progress=False)["episodes_run"] == s["episodes_run"] > 0
     assert f.stat().st_mtime_ns != mtime
+    # a file made under another NP-MRFT settings rule (the code that chose tau_obs, a_n) is made again
+    from uavsim.data import backends
+
+    monkeypatch.setattr(backends, "SETTINGS_RULE", backends.SETTINGS_RULE + 1)
+    assert generate(r2, tmp_path / "lat.h5", progress=False)["episodes_run"] == s["episodes_run"]
 
 
 def test_plan_is_deterministic_and_chunks_cover():

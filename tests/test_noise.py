@@ -150,8 +150,9 @@ def test_recommend_first_run_settings():
         estimate_noise(np.zeros(10), RATE)
 
 
-def _relay_run(tau_obs, a_n, noise_std, seconds=20.0, seed=0):
-    """One NP-MRFT run on an exact lumped altitude loop (T0 ~ 1.3 s) with white measurement noise."""
+def _relay_run(tau_obs, a_n, noise_std, seconds=20.0, seed=0, step=0.0):
+    """One NP-MRFT run on an exact lumped altitude loop (T0 ~ 1.3 s) with white measurement noise
+    (or, with ``step`` > 0, a sensor quantized to that step)."""
     from uavsim.control.relay import NPMRFT
     from uavsim.lumped.reference import LumpedDiscrete
 
@@ -162,10 +163,38 @@ def _relay_run(tau_obs, a_n, noise_std, seconds=20.0, seed=0):
     T = int(seconds * RATE)
     e, u = np.empty(T), np.empty(T)
     for k in range(T):
-        e[k] = -(y[0] + noise_std * rng.standard_normal())
+        y_meas = y[0] + noise_std * rng.standard_normal()
+        e[k] = -(step * np.round(y_meas / step) if step else y_meas)
         u[k] = relay(e[k:k + 1])[0]
         y = sim.step(u[k:k + 1])
     return np.arange(T) / RATE, e, u
+
+
+def test_on_lattice_tells_a_quantized_signal_from_noise():
+    from uavsim.noise.estimate import on_lattice
+
+    rng = np.random.default_rng(0)
+    y = np.sin(2 * np.pi * np.arange(2000) / RATE)
+    q = 0.2 * np.round(y / 0.2)
+    rows = np.stack([0.37 - q, y + 0.05 * rng.standard_normal(y.size), 0.37 - 0.2 * np.round(
+        (y + 0.01 * rng.standard_normal(y.size)) / 0.2), np.full(y.size, 0.5), y])
+    assert on_lattice(rows).tolist() == [True, False, True, False, False]
+
+
+def test_refine_keeps_a_protection_after_a_late_run_unless_the_sensor_is_quantized():
+    """One run that switched late (a_n far too large) must not take a_n to zero: the next run would
+    switch early on noise. A quantized sensor's lateness is its step, not chance: no floor there."""
+    from uavsim.noise.estimate import A_N_MIN
+
+    t, e, u = _relay_run(1 / RATE, 0.0, 0.0)
+    a0 = A.cycle_stats(t, -e, u).amplitude
+    t, e, u = _relay_run(1 / RATE, 0.3 * a0, 0.05 * a0, seed=1)
+    ref = refine(t, e, u, beta=-0.73, tau_obs=1 / RATE, a_n=0.3 * a0, rate_hz=RATE)
+    assert ref.refined and ref.switch_error < 0  # late
+    assert ref.a_n == pytest.approx(A_N_MIN * ref.noise.a_n, rel=1e-9) and ref.a_n > 0.005 * a0
+    t, e, u = _relay_run(1 / RATE, 0.3 * a0, 0.0, seed=1, step=0.1 * a0)
+    ref = refine(t, e, u, beta=-0.73, tau_obs=1 / RATE, a_n=0.3 * a0, rate_hz=RATE)
+    assert ref.refined and ref.switch_error < 0 and ref.a_n == 0.0
 
 
 def test_refine_noise_free_keeps_the_cycle_and_sets_a_long_observation():

@@ -23,6 +23,7 @@ from uavsim.data.h5 import CLASS_FIELDS, CLASS_PARAMS, write_dataset
 from uavsim.data.plan import Plan, att_classes_of
 from uavsim.data.recipe import Recipe
 from uavsim.errors import UserError
+from uavsim.noise.estimate import SETTINGS_RULE
 
 
 def class_table_gains(family: str, rate_hz: float, att_class: int | None) -> dict[str, np.ndarray]:
@@ -94,6 +95,7 @@ def assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict
     n_div = int(div[:nt].sum())
     attrs = {"loop": fam, "grid_hash": g.hash or "", "grid_version": int(g.version), "beta": plan.beta,
              "h": r.test.h, "relay_reading": READING, "relay_settings": r.test.settings,
+             "settings_rule": SETTINGS_RULE,
              "tau_obs": r.test.tau_obs if fixed else float("nan"), "a_n": r.test.a_n if fixed else float("nan"),
              "refinements": 0 if fixed else r.test.refinements, "rate_hz": r.episodes.rate_hz,
              "dt": r.episodes.dt, "input_length": L, "input_rate_hz": preprocess.INPUT_RATE_HZ,

@@ -31,6 +31,7 @@ from uavsim.data.episodes import chunk_task, run_chunk
 from uavsim.data.h5 import FORMAT, open_dataset
 from uavsim.data.plan import Plan
 from uavsim.errors import UserError
+from uavsim.noise.estimate import SETTINGS_RULE
 
 # --- resume state ---------------------------------------------------------------------------------
 
@@ -39,8 +40,8 @@ def finished_file(out: Path, plan: Plan) -> bool:
     attitude class) interrupted after some files continues without making them again.
 
     The file must pass ``open_dataset``'s checks (format, complete, its arrays), and its key
-    must be the chunks' resume key (recipe, attitude class, relay reading) and the grid the
-    file was made over; a file of another recipe, grid or reading is made again.
+    must be the chunks' resume key (recipe, attitude class, relay reading, settings rule) and the
+    grid the file was made over; a file of another recipe, grid, reading or rule is made again.
     """
     if not out.exists():
         return False
@@ -51,6 +52,7 @@ def finished_file(out: Path, plan: Plan) -> bool:
     att = a.get("att_class")
     return (a.get("recipe") == plan.recipe.text and int(a.get("seed", -1)) == plan.recipe.seed
             and a.get("grid_hash") == (plan.grid.hash or "") and a.get("relay_reading") == READING
+            and int(a.get("settings_rule", 1)) == SETTINGS_RULE
             and (None if att is None else int(att)) == plan.att_class)
 
 
@@ -60,7 +62,8 @@ class ResumeState:
     def __init__(self, out: Path, plan: Plan):
         self.dir = out.with_name(out.name + ".resume")
         self.key = {"recipe_hash": plan.recipe.hash, "att_class": plan.att_class, "n_chunks": len(plan.chunks),
-                    "format": FORMAT, "relay_reading": READING}
+                    "format": FORMAT, "relay_reading": READING,
+                    "settings_rule": SETTINGS_RULE}
         state = self.dir / "state.json"
         if self.dir.exists():
             try:
@@ -68,7 +71,7 @@ class ResumeState:
             except (OSError, ValueError):
                 old = None
             if old != self.key:
-                print(f"generate: {self.dir} is from another recipe; starting over", file=sys.stderr, flush=True)
+                print(f"generate: {self.dir} is from another recipe, relay reading or settings rule; starting over", file=sys.stderr, flush=True)
                 shutil.rmtree(self.dir)
         self.dir.mkdir(parents=True, exist_ok=True)
         if not state.exists():

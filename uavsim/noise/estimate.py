@@ -40,6 +40,12 @@ Two sources, both what a user has (never the true process):
      period: beta held ``tau_obs`` below the noise period on a fast cycle)
      gets at least ``A_N_FALSE_FACTOR x`` its ``a_n`` and ``A_N_FALSE_FLOOR x``
      the noise amplitude: the correction is then the protection left.
+     The lower bound ``A_N_MIN`` keeps a protection when a run switched late on
+     the median: without it one late run takes ``a_n`` to zero and the next run,
+     with a short ``tau_obs`` and no correction, switches early on noise. It is
+     not applied when every step of the error is a whole multiple of one step
+     (:func:`on_lattice`: a quantized sensor), whose switches are late by the
+     quantization itself, not early by chance.
 
 Why two steps. The correction ``a_n (1 - beta)`` is exact for the paper's
 noise model only (a sinusoid of amplitude ``a_n``: the confirmed peak
@@ -90,6 +96,11 @@ A_N_MAX = 1.0
 #: a run that switched falsely: a_n at least A_N_FALSE_FACTOR x its own and A_N_FALSE_FLOOR x the noise amplitude
 A_N_FALSE_FACTOR = 1.6
 A_N_FALSE_FLOOR = 0.5
+#: refined a_n >= A_N_MIN x the noise amplitude, unless the error samples lie on a lattice (quantization)
+A_N_MIN = 0.15
+#: the settings rule's version (this module's recommend and refine): training sets and their resume
+#: state record it, so that a file or chunk made under another rule is made again, not mixed in
+SETTINGS_RULE = 2
 #: half-cycles a refinement needs, and of them with the extremum beyond its switching level
 MIN_HALF_CYCLES = 4
 MIN_VALID_HALF_CYCLES = 2
@@ -513,6 +524,32 @@ def _half_cycles(s: np.ndarray, high: np.ndarray, sw: np.ndarray, beta: float, s
     return out
 
 
+def on_lattice(x: np.ndarray, *, tol: float = 1e-6, share: float = 0.99) -> np.ndarray:
+    """Whether each row's samples lie on a lattice: its steps whole multiples of its smallest step.
+
+    Parameters
+    ----------
+    x : (m, T) signals (a quantized measurement less a constant reference)
+    tol : how far from a whole multiple a step may be, as a fraction of the smallest step
+    share : the share of the nonzero steps that must be whole multiples
+
+    Returns
+    -------
+    (m,) bool; False for a row with fewer than 8 nonzero steps (nothing to judge).
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    out = np.zeros(x.shape[0], dtype=bool)
+    for i, row in enumerate(x):
+        d = np.abs(np.diff(row))
+        scale = float(np.max(np.abs(row))) if row.size else 0.0
+        d = d[d > 1e-12 * scale]
+        if d.size < 8:
+            continue
+        r = d / d.min()
+        out[i] = float(np.mean(np.abs(r - np.round(r)) <= tol * np.maximum(r, 1.0))) >= share
+    return out
+
+
 def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | np.ndarray,
                  tau_obs: float | np.ndarray, a_n: float | np.ndarray, rate_hz: float, settle: float | None = None,
                  hover_a_n: float | np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -577,6 +614,8 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
     q = out["noise_amplitude"].copy()
     if hover_a_n is not None:
         q = np.minimum(q, np.broadcast_to(np.asarray(hover_a_n, dtype=np.float64), (m,)))
+    floor = np.zeros(m)
+    floor[ok] = np.where(on_lattice(E[ok, i0:]), 0.0, A_N_MIN * q[ok])
     for j, i in enumerate(ok):
         edges = np.flatnonzero(rise[i]) + 1
         edges = edges[edges >= i0]
@@ -600,7 +639,7 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         out["false_switches"][i] = int(np.sum(np.diff(t[sw]) < 0.25 * out["period"][i]))
         if out["false_switches"][i]:
             a_n_new = max(a_n_new, A_N_FALSE_FACTOR * an0[i], A_N_FALSE_FLOOR * q[i])
-        out["a_n"][i] = float(np.clip(a_n_new, 0.0, A_N_MAX * q[i]))
+        out["a_n"][i] = float(np.clip(a_n_new, min(floor[i], A_N_MAX * q[i]), A_N_MAX * q[i]))
         # the observation must hold back neither switch: the median over the half-cycles, but
         # no more than LEVEL_SIDE_SLACK x the shorter side's (a relay bias makes the sides differ)
         # (degenerate half-cycles, whose switch is due at the extremum, cannot be spared: they do not count)
