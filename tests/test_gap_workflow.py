@@ -269,4 +269,5 @@ def test_lag_like_candidates_take_their_phase_out_of_tau():
     assert ev.tau_shift("lag", 0.01) == pytest.approx(math.atan(w * 0.01) / w)
     assert ev.tau_shift("lag", 1.0) == pytest.approx(0.02)  # never below tau = 0
     assert ev.tau_shift("delay", 0.01) == 0.0
+    assert ev.tau_shift("none", 0.0) == 0.0  # the bare model's episodes of an identified session
     assert _Evaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0

@@ -253,7 +253,7 @@ class _Evaluator:
 
     def tau_shift(self, name: str, value: float) -> float:
         """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
-        if not self.anchor_hz or vocabulary.term(name).phase is None:
+        if not self.anchor_hz or name == "none" or vocabulary.term(name).phase is None:
             return 0.0
         w = 2 * math.pi * self.anchor_hz
         return min(candidate_phase(name, value, self.anchor_hz) / w, float(self.model.tau))
