@@ -54,6 +54,7 @@ from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
 # Ideal holds on the axes a loop does not test: slow and well damped, so that
 # they stay stable with any rotor lag and delay of the paper's ranges.
 _HOLD_OMEGA = 2.0  # rad/s
+_TIME = mujoco.mjtState.mjSTATE_TIME
 
 
 @dataclass(kw_only=True)
@@ -254,6 +255,9 @@ class LoopBatch:
         self._sub_f = self._sub_frac[self._sub_rows]
         self._sub_g = 1.0 - self._sub_f
         self._ctrl_prev = np.zeros((n, self.model.nu))
+        # the period's controls per substep, for one rollout call (the blend in the first)
+        self._roll_ctrl = np.empty((n, self.rate_steps, self.model.nu)) if self._sub_any else None
+        self._roll_time = {_TIME: np.empty((n, self.rate_steps, 1))} if self._sub_any else None
         b.expand("actuator_delay")[:] = np.where(self._sub_step, 0.0, d)[:, None]
         if self.lateral:
             # sensordata lags the state by one substep (it is computed before the
@@ -315,7 +319,12 @@ class LoopBatch:
         the first substep, the blend ``(d/dt) u_prev + (1 - d/dt) u`` of the
         previous and the new command: what MuJoCo's linear history
         interpolation gives for longer delays, which it cannot give inside the
-        newest step.
+        newest step. The period is then one ``Batch.rollout`` call with the
+        controls of each substep (the same ``mj_step`` calls as a
+        ``Batch.step`` of the blend's substep and one of the rest, bit for bit,
+        at the cost of one call); an episode that the rollout stopped at a
+        MuJoCo warning is stepped on to the period's end, as ``Batch.step``
+        does.
 
         Raises
         ------
@@ -324,15 +333,33 @@ class LoopBatch:
         """
         new = self.ctrl.copy()
         if self._sub_any:
-            rows, f, g = self._sub_rows, self._sub_f, self._sub_g
-            self.ctrl[rows] = f * self._ctrl_prev[rows] + g * new[rows]
-            self.batch.step(nstep=1)
+            rows, ctl = self._sub_rows, self._roll_ctrl
+            ctl[:] = new[:, None, :]
+            ctl[rows, 0] = self._sub_f * self._ctrl_prev[rows] + self._sub_g * new[rows]
+            try:
+                self.batch.rollout(self.rate_steps, ctl, record=(_TIME,), out=self._roll_time)
+            finally:
+                if self.rate_steps > 1:
+                    self._finish_stopped(new)
             self.ctrl[:] = new
-            if self.rate_steps > 1:
-                self.batch.step(nstep=self.rate_steps - 1)
         else:
             self.batch.step(nstep=self.rate_steps)
         self._ctrl_prev = new
+
+    def _finish_stopped(self, new: np.ndarray) -> None:
+        """Step on the episodes that the last rollout stopped at a warning, as ``Batch.step`` would have."""
+        # a stopped episode repeats its last record: its time stands still
+        t = self._roll_time[_TIME][:, :, 0]
+        still = t[:, 1:] == t[:, :-1]
+        if not still.any():
+            return
+        ok = self.batch.status == 0  # an episode with a MuJoCo error kept its state: it is not stepped
+        first = np.where(still.any(axis=1), still.argmax(axis=1) + 1, self.rate_steps)
+        for i in range(1, self.rate_steps):
+            ids = np.flatnonzero((first == i) & ok)
+            if len(ids):
+                self.ctrl[ids] = new[ids]
+                self.batch.step(ids, nstep=self.rate_steps - i)
 
     def state_buffers(self, T: int) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
         """Empty ``qpos`` and ``rotor_force`` records, (n, T, 6) each, or (None, None) when not recording."""
