@@ -156,6 +156,13 @@ class EffectChain:
         return y
 
 
+def _index(idx: Sequence[int]) -> slice | np.ndarray:
+    """Columns ``idx`` as a slice where they are consecutive (a view, not a gather), else an index array."""
+    if all(b == a + 1 for a, b in zip(idx, idx[1:], strict=False)):
+        return slice(idx[0], idx[-1] + 1)
+    return np.array(idx)
+
+
 def _split_effects(effects: Sequence[Effect]):
     model, command, measurement, force = [], [], [], []
     for e in effects:
@@ -287,7 +294,7 @@ class LoopBatch:
                     for widx, ax, inertia in ((0, 2, v.mass_kg), (1, 3, v.Jx_kgm2), (2, 4, v.Jy_kgm2),
                                               (3, 5, v.Jz_kgm2)) if widx != skip]
             widx, ax, kq, kw = zip(*rows, strict=True)
-            gains = (np.array(widx), np.array(ax), np.array(kq), np.array(kw))
+            gains = (_index(widx), _index(ax), np.array(kq), np.array(kw))
             self._hold_cache[skip] = gains
         return gains
 
@@ -341,18 +348,19 @@ class LoopBatch:
             finally:
                 if self.rate_steps > 1:
                     self._finish_stopped(new)
-            self.ctrl[:] = new
+            if self.rate_steps == 1:
+                self.ctrl[:] = new  # else the last substep's control is new already
         else:
             self.batch.step(nstep=self.rate_steps)
         self._ctrl_prev = new
 
     def _finish_stopped(self, new: np.ndarray) -> None:
         """Step on the episodes that the last rollout stopped at a warning, as ``Batch.step`` would have."""
-        # a stopped episode repeats its last record: its time stands still
+        # a stopped episode repeats its last record: its time stands still (at the end at least)
         t = self._roll_time[_TIME][:, :, 0]
-        still = t[:, 1:] == t[:, :-1]
-        if not still.any():
+        if not (t[:, -1] == t[:, -2]).any():
             return
+        still = t[:, 1:] == t[:, :-1]
         ok = self.batch.status == 0  # an episode with a MuJoCo error kept its state: it is not stepped
         first = np.where(still.any(axis=1), still.argmax(axis=1) + 1, self.rate_steps)
         for i in range(1, self.rate_steps):
@@ -466,7 +474,10 @@ class LoopBatch:
                     reasons[int(i)] = f"MuJoCo error at t={t:.3f}s: {self.batch.error(int(i))}"
             diverged |= failed
         # one pass: a NaN fails every comparison, an infinity the last column's huge bound
-        bad = ~(np.abs(self.qpos) <= self._bounds).all(axis=1)
+        within = np.abs(self.qpos) <= self._bounds
+        if within.all():
+            return failed  # nothing new ran away (the usual sample: no per-episode reduction)
+        bad = ~within.all(axis=1)
         new = bad & ~diverged
         if bad.any():
             for i in np.flatnonzero(new):
@@ -510,24 +521,27 @@ class LoopBatch:
         else:
             R = np.broadcast_to(np.asarray(reference, dtype=float), (n, T))
             ref = lambda k: R[:, k]  # noqa: E731
-        R_out, Y, U, Yt = (np.empty((n, T)) for _ in range(4))
+        # recorded sample-major, one contiguous row per sample, and turned (n, T) at the end
+        rec = np.empty((4, T, n))
         QP, RF = self.state_buffers(T)
-        SW = np.zeros((n, T), dtype=bool)
+        SW = np.zeros((T, n), dtype=bool)
         has_sw = hasattr(controller, "switched")
         for k in range(T):
             y_true, y = self.measure(k)
             r = ref(k)
             u = np.asarray(controller(r - y), dtype=np.float64)
             self.actuate(u, k)
-            R_out[:, k], Y[:, k], U[:, k], Yt[:, k] = r, y, u, y_true
+            rec[0, k], rec[1, k], rec[2, k], rec[3, k] = r, y, u, y_true
             if has_sw:
-                SW[:, k] = controller.switched
+                SW[k] = controller.switched
             if QP is not None:
                 QP[:, k] = self.qpos
             self.step(k)
             if RF is not None:
                 RF[:, k] = self.actuator_force
         diverged = self.diverged
+        R_out, Y, U, Yt = (np.ascontiguousarray(a.T) for a in rec)
+        SW = np.ascontiguousarray(SW.T)
         for arr in (R_out, Y, U, Yt, QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
