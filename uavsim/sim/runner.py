@@ -338,20 +338,20 @@ class LoopBatch:
         mujoco.batch.SimulationError
             As :meth:`mujoco.batch.Batch.step`.
         """
-        new = self.ctrl.copy()
-        if self._sub_any:
-            rows, ctl = self._sub_rows, self._roll_ctrl
-            ctl[:] = new[:, None, :]
-            ctl[rows, 0] = self._sub_f * self._ctrl_prev[rows] + self._sub_g * new[rows]
-            try:
-                self.batch.rollout(self.rate_steps, ctl, record=(_TIME,), out=self._roll_time)
-            finally:
-                if self.rate_steps > 1:
-                    self._finish_stopped(new)
-            if self.rate_steps == 1:
-                self.ctrl[:] = new  # else the last substep's control is new already
-        else:
+        if not self._sub_any:
             self.batch.step(nstep=self.rate_steps)
+            return
+        new = self.ctrl.copy()
+        rows, ctl = self._sub_rows, self._roll_ctrl
+        ctl[:] = new[:, None, :]
+        ctl[rows, 0] = self._sub_f * self._ctrl_prev[rows] + self._sub_g * new[rows]
+        try:
+            self.batch.rollout(self.rate_steps, ctl, record=(_TIME,), out=self._roll_time)
+        finally:
+            if self.rate_steps > 1:
+                self._finish_stopped(new)
+        if self.rate_steps == 1:
+            self.ctrl[:] = new  # else the last substep's control is new already
         self._ctrl_prev = new
 
     def _finish_stopped(self, new: np.ndarray) -> None:
