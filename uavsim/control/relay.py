@@ -192,6 +192,8 @@ class NPMRFT:
         self.n_obs = np.ceil(self.tau_obs * self.rate_hz - 1e-9).astype(np.int64)
         self.rho = guard_fraction(self.beta)
         self._corr = self.a_n * (1.0 - self.beta)
+        self._nbeta = -self.beta
+        self._bias_nz = self.bias != 0
         # the centre is zero without a relay bias: its running sums are then not needed
         self._biased = bool(np.any(self.bias != 0))
         self.reset()
@@ -217,18 +219,20 @@ class NPMRFT:
         self.sign = np.ones(n)          # +1 while u = +h, -1 while u = -h
         self.e_ext = np.zeros(n)        # extremum of the current half-wave
         self.k_ext = np.zeros(n, dtype=np.int64)
-        self.k_sw = np.zeros(n, dtype=np.int64)      # last switch (0: the start)
+        # the last switch (0: the start) and the two switches before it, rows of one array
+        # so that a switch shifts them in one operation
+        self._ksw = np.zeros((3, n), dtype=np.int64)
+        self.k_sw, self.k_sw2, self.k_sw3 = self._ksw
         self.half = np.zeros((2, n), dtype=np.int64)  # the two previous half-periods, samples
-        self.k_sw2 = np.zeros(n, dtype=np.int64)     # the two switches before it
-        self.k_sw3 = np.zeros(n, dtype=np.int64)
         self.n_sw = np.zeros(n, dtype=np.int64)      # switches so far
         self.sum_e = np.zeros(n)        # sum of e over samples 0..k-1
-        self.sum_sw = np.zeros(n)       # sum_e at the last switch and at the two before
-        self.sum_sw2 = np.zeros(n)
-        self.sum_sw3 = np.zeros(n)
+        self._sums = np.zeros((3, n))   # sum_e at the last switch and at the two before
+        self.sum_sw, self.sum_sw2, self.sum_sw3 = self._sums
+        self._se_ext = np.zeros(n)      # sign * e_ext
         self._centre = np.zeros(n)
         self.armed = np.ones(n, dtype=bool)
         self.guard = np.zeros(n, dtype=bool)
+        self._guarded = False           # guard has a True
         self.switched = np.zeros(n, dtype=bool)
         self.confirmed = np.zeros(n, dtype=bool)
 
@@ -244,10 +248,14 @@ class NPMRFT:
         """
         return self._centre
 
-    def _update_centre(self, rows: np.ndarray) -> None:
-        span = np.maximum(self.k_sw[rows] - self.k_sw3[rows], 1)
-        mean = (self.sum_sw[rows] - self.sum_sw3[rows]) / span
-        self._centre[rows] = np.where((self.bias[rows] != 0) & (self.n_sw[rows] >= 3), mean, 0.0)
+    def _update_centre(self, sw: np.ndarray) -> None:
+        # the mean error over the last two half-periods, in the switched rows ``sw`` (bool (n,))
+        # of a biased relay that has switched three times; elsewhere it stays zero
+        rows = sw & self._bias_nz
+        rows &= self.n_sw >= 3
+        span = np.subtract(self.k_sw, self.k_sw3)
+        np.maximum(span, 1, out=span)
+        np.divide(self.sum_sw - self.sum_sw3, span, out=self._centre, where=rows)
 
     def _confirmed(self) -> np.ndarray:
         return (self.k - self.k_ext) >= self.n_obs
@@ -255,85 +263,97 @@ class NPMRFT:
     def __call__(self, e: np.ndarray) -> np.ndarray:
         """Advance one sample with errors ``e`` (n,); return the commands (n,)."""
         e = np.asarray(e, dtype=np.float64)
-        k = self.k
-        if k == 0:
-            # the start counts as the start of a half-wave on the side of the first error
-            self.sign = np.where(e >= 0, 1.0, -1.0)
-            self.sum_e = np.zeros(self.n)
-            self.e_ext = e.copy()
-            self.k_ext[:] = 0
-            self.k_sw[:] = 0
-            self.half[:] = 0
-            self.k_sw2[:] = 0
-            self.k_sw3[:] = 0
-            self.n_sw[:] = 0
-            self.sum_sw[:] = 0.0
-            self.sum_sw2[:] = 0.0
-            self.sum_sw3[:] = 0.0
-            self._centre[:] = 0.0
-            self.armed[:] = True
-            self.guard[:] = False
-            self.switched[:] = False
-            self.confirmed[:] = False
+        if self.k == 0:
+            self._first(e)
         else:
-            sgn = self.sign
-            up = sgn > 0
-            e_ext, k_ext = self.e_ext, self.k_ext
-            start = None
-            self.guard[:] = False
-            if self.reading == 2:
-                waiting = ~self.armed
-                if waiting.any():
-                    # the half-wave of this relay state starts at the first sample on its side of the
-                    # cycle's centre, or, by the deadlock guard, W samples after the switch
-                    side = sgn * (e - self._centre) >= 0 if self._biased else sgn * e >= 0
-                    wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
-                    start = waiting & (side | (k - self.k_sw >= wait))
-                    if start.any():
-                        self.guard = start & ~side
-                        e_ext[start] = e[start]
-                        k_ext[start] = k
-                        self.armed |= start
-            # running max while u = +h, running min while u = -h (ties keep the first)
-            better = np.where(up, e > e_ext, e < e_ext)
-            better &= self.armed
-            if start is not None:
-                better &= ~start
-            if better.any():
-                e_ext[better] = e[better]
-                k_ext[better] = k
-            conf = self.armed & ((k - k_ext) >= self.n_obs)
-            corr = self._corr
-            t = self.beta * e_ext
-            # b2 = beta e_max + a_n (1 - beta): switch down when e <= -b2;
-            # b1 = -beta e_min + a_n (1 - beta): switch up when e >= b1
-            sw = conf & np.where(up, e <= -(t + corr), e >= -t + corr)
-            if sw.any():
-                self.sign = np.where(sw, -sgn, sgn)
-                self.half[1, sw] = self.half[0, sw]
-                self.half[0, sw] = k - self.k_sw[sw]
-                self.k_sw3[sw] = self.k_sw2[sw]
-                self.k_sw2[sw] = self.k_sw[sw]
-                self.k_sw[sw] = k
-                self.sum_sw3[sw] = self.sum_sw2[sw]
-                self.sum_sw2[sw] = self.sum_sw[sw]
-                self.sum_sw[sw] = self.sum_e[sw]
-                self.n_sw += sw
-                e_ext[sw] = e[sw]
-                k_ext[sw] = k
-                if self.reading == 2:
-                    # the new half-wave has started if e is already on its side of the centre
-                    if self._biased:
-                        self._update_centre(sw)
-                        self.armed[sw] = (self.sign * (e - self._centre) >= 0)[sw]
-                    else:
-                        self.armed[sw] = (self.sign * e >= 0)[sw]
-            self.switched = sw
-            self.confirmed = conf & ~sw
+            self._update(e, self.k)
         if self._biased:
             self.sum_e += e
         self.k += 1
         return self.sign * self.h + self.bias
+
+    def _first(self, e: np.ndarray) -> None:
+        # the start counts as the start of a half-wave on the side of the first error
+        self.sign = np.where(e >= 0, 1.0, -1.0)
+        self.sum_e = np.zeros(self.n)
+        self.e_ext = e.copy()
+        self._se_ext = self.sign * e
+        self.k_ext[:] = 0
+        self._ksw[:] = 0
+        self.half[:] = 0
+        self.n_sw[:] = 0
+        self._sums[:] = 0.0
+        self._centre[:] = 0.0
+        self.armed[:] = True
+        self.guard[:] = False
+        self.switched[:] = False
+        self.confirmed[:] = False
+
+    def _update(self, e: np.ndarray, k: int) -> None:
+        # One sample of every relay in whole-array operations (the per-sample Python cost of
+        # dataset generation): the error and the extremum are held times the relay state,
+        # s e and s e_ext (s = +-1, exact), so that the running max of u = +h and the running
+        # min of u = -h are one comparison, and the switching levels (paper eq. 22-23)
+        #   u = +h: e <= -(beta e_max + a_n (1 - beta)),  u = -h: e >= -beta e_min + a_n (1 - beta)
+        # are one: s e <= -beta (s e_ext) - a_n (1 - beta), rounded the same (rounding is odd).
+        sgn, armed = self.sign, self.armed
+        se = sgn * e
+        # running max while u = +h, running min while u = -h (ties keep the first)
+        upd = se > self._se_ext
+        upd &= armed
+        if self.reading == 2 and not armed.all():
+            # the half-wave of this relay state starts at the first sample on its side of the
+            # cycle's centre, or, by the deadlock guard, W samples after the switch; there the
+            # extremum is e (rows not armed, so not among the better ones above)
+            side = sgn * (e - self._centre) >= 0 if self._biased else se >= 0
+            wait = np.ceil(self.rho * np.maximum(self.half[0], self.half[1]))
+            start = np.subtract(k, self.k_sw) >= wait
+            start |= side
+            start &= ~armed
+            self.guard = start & ~side
+            self._guarded = True
+            upd |= start
+            armed |= start
+        elif self._guarded:
+            self.guard[:] = False
+            self._guarded = False
+        np.copyto(self.e_ext, e, where=upd)
+        np.copyto(self._se_ext, se, where=upd)
+        np.copyto(self.k_ext, k, where=upd)
+        conf = np.subtract(k, self.k_ext) >= self.n_obs
+        conf &= armed
+        level = self._nbeta * self._se_ext
+        level -= self._corr
+        sw = se <= level
+        sw &= conf
+        if sw.any():
+            self._switch(e, se, sw, k)
+        self.switched = sw
+        self.confirmed = conf ^ sw  # sw lies within conf
+
+    def _switch(self, e: np.ndarray, se: np.ndarray, sw: np.ndarray, k: int) -> None:
+        # the switch history shifts by one in the switched rows: the last half-period -> the one
+        # before, k_sw -> k_sw2 -> k_sw3, sum_sw likewise (copyto buffers the overlapping rows)
+        half = self.half
+        np.copyto(half[1], half[0], where=sw)
+        np.subtract(k, self.k_sw, out=half[0], where=sw)
+        np.copyto(self._ksw[1:], self._ksw[:-1], where=sw)
+        np.copyto(self.k_sw, k, where=sw)
+        np.copyto(self._sums[1:], self._sums[:-1], where=sw)
+        np.copyto(self.sum_sw, self.sum_e, where=sw)
+        self.n_sw += sw
+        sign = self.sign
+        np.negative(sign, out=sign, where=sw)
+        np.copyto(self.e_ext, e, where=sw)
+        np.negative(se, out=self._se_ext, where=sw)  # the new state's s e
+        np.copyto(self.k_ext, k, where=sw)
+        if self.reading == 2:
+            # the new half-wave has started if e is already on its side of the centre
+            if self._biased:
+                self._update_centre(sw)
+                np.copyto(self.armed, sign * (e - self._centre) >= 0, where=sw)
+            else:
+                np.copyto(self.armed, se <= 0, where=sw)  # -s e >= 0 with the old s
 
 
 class MRFT(NPMRFT):

@@ -79,8 +79,9 @@ class RefiningRelay:
         self.stage = int(stage)
         self.bounds = {self.stage * (i + 1) for i in range(refinements)} if self.stage > 0 else set()
         T = max(self.bounds, default=0)
-        self.E = np.empty((relay.n, T))
-        self.U = np.empty((relay.n, T))
+        # the stages' errors and commands, sample-major (one contiguous row per sample)
+        self.E = np.empty((T, relay.n))
+        self.U = np.empty((T, relay.n))
         self.hover_a_n = np.asarray(hover_a_n, dtype=np.float64)
         self.history = [(relay.tau_obs.copy(), relay.a_n.copy())]
         self.k = 0
@@ -95,15 +96,16 @@ class RefiningRelay:
             r = self.relay
             a = k - self.stage
             t = np.arange(self.stage) / r.rate_hz
-            rf = refine_batch(t, np.nan_to_num(self.E[:, a:k]), self.U[:, a:k], beta=r.beta, tau_obs=r.tau_obs,
+            E, U = (np.ascontiguousarray(x[a:k].T) for x in (self.E, self.U))  # (n, stage)
+            rf = refine_batch(t, np.nan_to_num(E), U, beta=r.beta, tau_obs=r.tau_obs,
                               a_n=r.a_n, rate_hz=r.rate_hz, settle=STAGE_SETTLE * self.stage / r.rate_hz,
                               hover_a_n=self.hover_a_n)
             r.retune(rf["tau_obs"], rf["a_n"])
             self.history.append((r.tau_obs.copy(), r.a_n.copy()))
         u = self.relay(e)
-        if k < self.E.shape[1]:
-            self.E[:, k] = e
-            self.U[:, k] = u
+        if k < len(self.E):
+            self.E[k] = e
+            self.U[k] = u
         self.k += 1
         return u
 

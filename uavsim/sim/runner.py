@@ -54,6 +54,7 @@ from uavsim.model.vehicle import G, Vehicle, hexarotor_mjcf
 # Ideal holds on the axes a loop does not test: slow and well damped, so that
 # they stay stable with any rotor lag and delay of the paper's ranges.
 _HOLD_OMEGA = 2.0  # rad/s
+_TIME = mujoco.mjtState.mjSTATE_TIME
 
 
 @dataclass(kw_only=True)
@@ -155,6 +156,13 @@ class EffectChain:
         return y
 
 
+def _index(idx: Sequence[int]) -> slice | np.ndarray:
+    """Columns ``idx`` as a slice where they are consecutive (a view, not a gather), else an index array."""
+    if all(b == a + 1 for a, b in zip(idx, idx[1:], strict=False)):
+        return slice(idx[0], idx[-1] + 1)
+    return np.array(idx)
+
+
 def _split_effects(effects: Sequence[Effect]):
     model, command, measurement, force = [], [], [], []
     for e in effects:
@@ -254,6 +262,9 @@ class LoopBatch:
         self._sub_f = self._sub_frac[self._sub_rows]
         self._sub_g = 1.0 - self._sub_f
         self._ctrl_prev = np.zeros((n, self.model.nu))
+        # the period's controls per substep, for one rollout call (the blend in the first)
+        self._roll_ctrl = np.empty((n, self.rate_steps, self.model.nu)) if self._sub_any else None
+        self._roll_time = {_TIME: np.empty((n, self.rate_steps, 1))} if self._sub_any else None
         b.expand("actuator_delay")[:] = np.where(self._sub_step, 0.0, d)[:, None]
         if self.lateral:
             # sensordata lags the state by one substep (it is computed before the
@@ -283,7 +294,7 @@ class LoopBatch:
                     for widx, ax, inertia in ((0, 2, v.mass_kg), (1, 3, v.Jx_kgm2), (2, 4, v.Jy_kgm2),
                                               (3, 5, v.Jz_kgm2)) if widx != skip]
             widx, ax, kq, kw = zip(*rows, strict=True)
-            gains = (np.array(widx), np.array(ax), np.array(kq), np.array(kw))
+            gains = (_index(widx), _index(ax), np.array(kq), np.array(kw))
             self._hold_cache[skip] = gains
         return gains
 
@@ -315,24 +326,48 @@ class LoopBatch:
         the first substep, the blend ``(d/dt) u_prev + (1 - d/dt) u`` of the
         previous and the new command: what MuJoCo's linear history
         interpolation gives for longer delays, which it cannot give inside the
-        newest step.
+        newest step. The period is then one ``Batch.rollout`` call with the
+        controls of each substep (the same ``mj_step`` calls as a
+        ``Batch.step`` of the blend's substep and one of the rest, bit for bit,
+        at the cost of one call); an episode that the rollout stopped at a
+        MuJoCo warning is stepped on to the period's end, as ``Batch.step``
+        does.
 
         Raises
         ------
         mujoco.batch.SimulationError
             As :meth:`mujoco.batch.Batch.step`.
         """
-        new = self.ctrl.copy()
-        if self._sub_any:
-            rows, f, g = self._sub_rows, self._sub_f, self._sub_g
-            self.ctrl[rows] = f * self._ctrl_prev[rows] + g * new[rows]
-            self.batch.step(nstep=1)
-            self.ctrl[:] = new
-            if self.rate_steps > 1:
-                self.batch.step(nstep=self.rate_steps - 1)
-        else:
+        if not self._sub_any:
             self.batch.step(nstep=self.rate_steps)
+            return
+        new = self.ctrl.copy()
+        rows, ctl = self._sub_rows, self._roll_ctrl
+        ctl[:] = new[:, None, :]
+        ctl[rows, 0] = self._sub_f * self._ctrl_prev[rows] + self._sub_g * new[rows]
+        try:
+            self.batch.rollout(self.rate_steps, ctl, record=(_TIME,), out=self._roll_time)
+        finally:
+            if self.rate_steps > 1:
+                self._finish_stopped(new)
+        if self.rate_steps == 1:
+            self.ctrl[:] = new  # else the last substep's control is new already
         self._ctrl_prev = new
+
+    def _finish_stopped(self, new: np.ndarray) -> None:
+        """Step on the episodes that the last rollout stopped at a warning, as ``Batch.step`` would have."""
+        # a stopped episode repeats its last record: its time stands still (at the end at least)
+        t = self._roll_time[_TIME][:, :, 0]
+        if not (t[:, -1] == t[:, -2]).any():
+            return
+        still = t[:, 1:] == t[:, :-1]
+        ok = self.batch.status == 0  # an episode with a MuJoCo error kept its state: it is not stepped
+        first = np.where(still.any(axis=1), still.argmax(axis=1) + 1, self.rate_steps)
+        for i in range(1, self.rate_steps):
+            ids = np.flatnonzero((first == i) & ok)
+            if len(ids):
+                self.ctrl[ids] = new[ids]
+                self.batch.step(ids, nstep=self.rate_steps - i)
 
     def state_buffers(self, T: int) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
         """Empty ``qpos`` and ``rotor_force`` records, (n, T, 6) each, or (None, None) when not recording."""
@@ -439,7 +474,10 @@ class LoopBatch:
                     reasons[int(i)] = f"MuJoCo error at t={t:.3f}s: {self.batch.error(int(i))}"
             diverged |= failed
         # one pass: a NaN fails every comparison, an infinity the last column's huge bound
-        bad = ~(np.abs(self.qpos) <= self._bounds).all(axis=1)
+        within = np.abs(self.qpos) <= self._bounds
+        if within.all():
+            return failed  # nothing new ran away (the usual sample: no per-episode reduction)
+        bad = ~within.all(axis=1)
         new = bad & ~diverged
         if bad.any():
             for i in np.flatnonzero(new):
@@ -483,24 +521,27 @@ class LoopBatch:
         else:
             R = np.broadcast_to(np.asarray(reference, dtype=float), (n, T))
             ref = lambda k: R[:, k]  # noqa: E731
-        R_out, Y, U, Yt = (np.empty((n, T)) for _ in range(4))
+        # recorded sample-major, one contiguous row per sample, and turned (n, T) at the end
+        rec = np.empty((4, T, n))
         QP, RF = self.state_buffers(T)
-        SW = np.zeros((n, T), dtype=bool)
+        SW = np.zeros((T, n), dtype=bool)
         has_sw = hasattr(controller, "switched")
         for k in range(T):
             y_true, y = self.measure(k)
             r = ref(k)
             u = np.asarray(controller(r - y), dtype=np.float64)
             self.actuate(u, k)
-            R_out[:, k], Y[:, k], U[:, k], Yt[:, k] = r, y, u, y_true
+            rec[0, k], rec[1, k], rec[2, k], rec[3, k] = r, y, u, y_true
             if has_sw:
-                SW[:, k] = controller.switched
+                SW[k] = controller.switched
             if QP is not None:
                 QP[:, k] = self.qpos
             self.step(k)
             if RF is not None:
                 RF[:, k] = self.actuator_force
         diverged = self.diverged
+        R_out, Y, U, Yt = (np.ascontiguousarray(a.T) for a in rec)
+        SW = np.ascontiguousarray(SW.T)
         for arr in (R_out, Y, U, Yt, QP, RF):
             if arr is not None:
                 arr[diverged] = np.nan
