@@ -195,7 +195,7 @@ class NPMRFT:
         self._nbeta = -self.beta
         self._bias_nz = self.bias != 0
         # the centre is zero without a relay bias: its running sums are then not needed
-        self._biased = bool(np.any(self.bias != 0))
+        self._biased = bool(self._bias_nz.any())
         self.reset()
 
     def retune(self, tau_obs=None, a_n=None) -> None:

@@ -81,8 +81,8 @@ VERIFY = 3
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
 def candidate_phase(name: str, value: float, freq_hz: float) -> float:
     """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (its vocabulary term's
-    ``phase``; 0 for effects without one)."""
-    phase = vocabulary.term(name).phase
+    ``phase``; 0 for effects without one and for the bare model, ``none``)."""
+    phase = vocabulary.term(name).phase if name in vocabulary.names() else None
     return 0.0 if phase is None else float(phase(value, freq_hz))
 
 
@@ -253,7 +253,7 @@ class _Evaluator:
 
     def tau_shift(self, name: str, value: float) -> float:
         """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
-        if not self.anchor_hz or name == "none" or vocabulary.term(name).phase is None:
+        if not self.anchor_hz:
             return 0.0
         w = 2 * math.pi * self.anchor_hz
         return min(candidate_phase(name, value, self.anchor_hz) / w, float(self.model.tau))

@@ -330,7 +330,12 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
             if bundle.cost is not None:  # the candidates judged on the belief's fitted models
                 J["answer_fitted"] = np.full(n, _FAIL)
                 if gi.size:
-                    c_fit = decide_fitted(bundle, ids["act"][gi], ids["response"][gi], ids["response_period"][gi]).cls
+                    if all(ans[i]["decision"]["decision"] == "fitted" for i in gi):
+                        # the answers were decided so (--decision fitted): their classes, not a second search
+                        c_fit = np.array([ans[i]["class"] for i in gi])
+                    else:
+                        c_fit = decide_fitted(bundle, ids["act"][gi], ids["response"][gi],
+                                              ids["response_period"][gi]).cls
                     J["answer_fitted"][gi] = Jall[row, c_fit]
     # alternatives on the identified episodes: the network's class with other gain choices
     for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum", "optimum_when_off_grid"):

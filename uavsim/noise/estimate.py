@@ -639,7 +639,7 @@ def refine_batch(t: np.ndarray, e: np.ndarray, u: np.ndarray, *, beta: float | n
         out["false_switches"][i] = int(np.sum(np.diff(t[sw]) < 0.25 * out["period"][i]))
         if out["false_switches"][i]:
             a_n_new = max(a_n_new, A_N_FALSE_FACTOR * an0[i], A_N_FALSE_FLOOR * q[i])
-        out["a_n"][i] = float(np.clip(a_n_new, min(floor[i], A_N_MAX * q[i]), A_N_MAX * q[i]))
+        out["a_n"][i] = float(np.clip(a_n_new, floor[i], A_N_MAX * q[i]))
         # the observation must hold back neither switch: the median over the half-cycles, but
         # no more than LEVEL_SIDE_SLACK x the shorter side's (a relay bias makes the sides differ)
         # (degenerate half-cycles, whose switch is due at the extremum, cannot be spared: they do not count)
