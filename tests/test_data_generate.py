@@ -317,3 +317,14 @@ def test_dask_cluster_with_a_killed_worker_writes_the_same_file(tmp_path):
         out2 = tmp_path / "sched.h5"
         generate(r, out2, progress=False, backend=f"dask:{cluster.scheduler_address}")
         assert out2.read_bytes() == ref.read_bytes()
+
+
+def test_chunk_threads_share_the_cpus_and_the_last_takes_all():
+    from uavsim.data.backends import chunk_threads
+
+    assert chunk_threads(5, 2, cpus=2) == [1, 1, 1, 1, 2]
+    assert chunk_threads(3, 2, cpus=8) == [4, 4, 8]
+    assert chunk_threads(1, 2, cpus=2) == [2]
+    assert chunk_threads(0, 2, cpus=2) == []
+    assert chunk_threads(4, 1, cpus=2) == [2, 2, 2, 2]
+    assert chunk_threads(4, 4, cpus=2) == [1, 1, 1, 2]

@@ -9,12 +9,13 @@ how busy the machine is:
   ``sim_s_per_wall_s`` (simulated seconds per wall second);
 - raw: ``Batch.step`` alone on the same batches (same models, processes,
   substeps and episode lengths), no controller, no effects, no writing, each
-  batch on all CPUs, both one batch after another and two at a time (as
-  generation runs them); the faster arrangement is the baseline,
-  ``raw_sim_s_per_wall_s``;
+  batch arranged three ways: one after another on all CPUs, two at a time on
+  all CPUs each, and two at a time on each one's share of the CPUs with the
+  last on all (``chunk_threads``, as generation runs them); the fastest
+  arrangement is the baseline, ``raw_sim_s_per_wall_s``;
 - ``ratio_to_raw`` = generation / raw (goal >= 0.90).
 
-The three are interleaved ``--repeats`` times and each reported figure is the
+The four are interleaved ``--repeats`` times and each reported figure is the
 best of its repeats (the machine is shared: the best run is the least disturbed).
 
     uavsim bench generate --json
@@ -58,36 +59,42 @@ level = [0.0, 0.2]
 """
 
 
-def _raw_wall(recipe, concurrent: bool) -> float:
+#: raw arrangements: (batches at a time, physics threads per batch: "all" CPUs or generation's "split")
+RAW_ARRANGEMENTS = {"sequential": (1, "all"), "concurrent": (2, "all"), "split": (2, "split")}
+
+
+def _raw_wall(recipe, arrangement: str) -> float:
     """Wall seconds of ``Batch.step`` alone over every batch of the recipe's plan.
 
-    ``concurrent``: two batches at a time on a thread pool, longest first, each on all
-    CPUs (how generation schedules them); otherwise one batch after another on all CPUs.
+    Batches run longest first (as generation runs them), ``RAW_ARRANGEMENTS[arrangement]``:
+    one after another on all CPUs, two at a time on all CPUs each, or two at a time with
+    generation's threads per batch (``chunk_threads``: a share each, the last on all).
     """
+    from uavsim.cpus import available_cpus
+    from uavsim.data.backends import chunk_threads
     from uavsim.data.generate import load_family_grid, make_plan
     from uavsim.sim.runner import LoopBatch
 
+    workers, threads = RAW_ARRANGEMENTS[arrangement]
     plan = make_plan(recipe, load_family_grid(recipe))
+    order = sorted(range(len(plan.chunks)), key=lambda i: -len(plan.chunks[i]) * plan.durations[i])
+    nthread = chunk_threads(len(order), workers) if threads == "split" else [available_cpus()] * len(order)
     batches = []
-    for i, ids in enumerate(plan.chunks):
+    for i, nt in zip(order, nthread, strict=True):
+        ids = plan.chunks[i]
         params = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e]))
                   for e in ids]
-        lb = LoopBatch(params, dt=recipe.episodes.dt, rate_hz=recipe.episodes.rate_hz, y0=plan.y0[ids])
+        lb = LoopBatch(params, dt=recipe.episodes.dt, rate_hz=recipe.episodes.rate_hz, y0=plan.y0[ids], nthread=nt)
         batches.append((lb, int(round(plan.durations[i] * recipe.episodes.rate_hz))))
 
-    def step(k: int) -> None:
-        lb, T = batches[k]
+    def step(b) -> None:
+        lb, T = b
         for _ in range(T):
             lb.batch.step(nstep=lb.rate_steps)
 
-    order = sorted(range(len(batches)), key=lambda k: -batches[k][0].n * batches[k][1])
     t0 = time.perf_counter()
-    if concurrent:
-        with cf.ThreadPoolExecutor(max_workers=2) as ex:
-            list(ex.map(step, order))
-    else:
-        for k in order:
-            step(k)
+    with cf.ThreadPoolExecutor(max_workers=workers) as ex:
+        list(ex.map(step, batches))
     return time.perf_counter() - t0
 
 
@@ -107,21 +114,23 @@ def bench_generate(n_classes: int = 26, per_class: int = 16, chunk: int = 104, w
     step = max(1, g.n // n_classes)
     classes = list(range(0, g.n, step))[:n_classes]
     text = BENCH_RECIPE.format(classes=classes, per_class=per_class, chunk=chunk)
-    seq, conc, gen = [], [], []
+    walls: dict[str, list[float]] = {a: [] for a in RAW_ARRANGEMENTS}
+    gen = []
     with tempfile.TemporaryDirectory() as tmp:
         recipe = parse_recipe(text, str(Path(tmp) / "bench.toml"), "bench")
         for k in range(max(1, repeats)):
-            seq.append(_raw_wall(recipe, False))
+            walls["sequential"].append(_raw_wall(recipe, "sequential"))
             s = generate(recipe, Path(tmp) / f"bench{k}.h5", workers=workers, progress=False)
             gen.append(s)
-            conc.append(_raw_wall(recipe, True))
+            walls["concurrent"].append(_raw_wall(recipe, "concurrent"))
+            walls["split"].append(_raw_wall(recipe, "split"))
     best = min(gen, key=lambda x: x["wall_s"])
-    raw_wall = min(min(seq), min(conc))  # the better arrangement is the baseline
+    raw_wall = min(min(v) for v in walls.values())  # the fastest arrangement is the baseline
     raw = best["simulated_s"] / raw_wall
     return {"episodes": best["episodes_run"], "classes": len(classes), "repeats": len(gen),
             "simulated_s": best["simulated_s"], "wall_s": best["wall_s"], "wall_s_all": [x["wall_s"] for x in gen],
             "episodes_per_s": best["episodes_per_s"], "sim_s_per_wall_s": best["sim_s_per_wall_s"],
-            "raw_wall_s": raw_wall, "raw_sequential_wall_s": seq, "raw_concurrent_wall_s": conc,
+            "raw_wall_s": raw_wall, **{f"raw_{a}_wall_s": v for a, v in walls.items()},
             "raw_sim_s_per_wall_s": raw, "ratio_to_raw": best["sim_s_per_wall_s"] / raw,
             "n_kept": best["n_kept"], "n_rejected": best["n_rejected"], "n_diverged": best["n_diverged"]}
 

@@ -33,8 +33,9 @@ How it is made reproducible and resumable:
   file is assembled from the chunks in plan order at the end, so it has the
   same bytes as an uninterrupted run.
 * **Backends.** ``threads`` (default): chunks on a local thread pool of 2,
-  longest first, each ``LoopBatch`` on all CPUs (the numpy controller of one
-  chunk overlaps the physics of another, and the last chunk uses every core). ``dask``: chunks are Dask distributed
+  longest first, each ``LoopBatch`` on its share of the CPUs and the last on
+  all (``chunk_threads``: the numpy controller of one chunk overlaps the
+  physics of another without oversubscribing the cores). ``dask``: chunks are Dask distributed
   tasks (``local:N`` starts a LocalCluster of N one-thread workers, or a
   scheduler address); a lost worker's tasks are re-run by Dask, and as they are
   pure, the file is the same.
