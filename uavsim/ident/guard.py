@@ -17,9 +17,9 @@ can show is better). It is a back-off by a margin stated in phase, not a blanket
 detuning: ``uavsim evaluate`` scores it (``answer_guarded``) beside the plain
 ``x0.85`` detuning of the answer.
 
-Measured on development seeds 11 and 12 (docs/results/identification.md) it halves
-the unstable answers of the inner loops at a median cost under 0.5 %, and removes
-about a quarter of the lateral ones; it does not remove them all (the truth of the
+Measured on development seeds 11 and 12 (docs/results/identification.md) it removes
+13 -> 8 unstable answers of the inner loops at a median cost under 0.5 %, and
+48 -> 39 lateral ones; it does not remove them all (the truth of the
 remaining ones is not near any model fitted to the measured point), so it is
 opt-in (``identify_cycle(..., guard=True)``). Cost: one lifted loop and
 ``len(GUARD_SCALES)`` ISEs (a few ms).
