@@ -76,7 +76,8 @@ def test_cli_small_run(three_model, tmp_path):  # noqa: F811 (fixture)
     assert out["spec"]["seed"] == 3 and out["spec"]["n"] == 5 and out["rate_hz"] == 200.0
     rows = out["rows"]
     assert set(rows) >= {"all", "0%", "20%", "goal"}
-    assert set(rows["all"]) >= {"answer", "answer_x0.85", "rule_on_truth", "table_best_class", "table_nearest_class"}
+    assert set(rows["all"]) >= {"answer", "answer_x0.85", "answer_guarded", "rule_on_truth", "table_best_class",
+                            "table_nearest_class"}
     a = rows["all"]["answer"]
     assert a["n"] == 5 and a["refused"] == sum(out["refusals"].values())
     assert rows["all"]["rule_on_truth"]["n"] == 5

@@ -428,6 +428,22 @@ def test_no_oscillation_is_a_user_error():
     assert issubclass(NoOscillation, UserError)
 
 
+def _attitude_cycles(seed: int):
+    """Exact 200 Hz relay cycles of 4 attitude grid classes with K log-uniform in 0.5-2, and their optima."""
+    from uavsim.data.preprocess import input_length
+    from uavsim.lumped.simulate import simulate_relay_batch
+    from uavsim.tuning.optimal import optimal_gains
+
+    g, b = _grid_bundle("attitude", 0)
+    b.input_length = b.predictor.input_length = input_length(g)
+    rng = np.random.default_rng(seed)
+    cs = rng.choice(g.n, 4, replace=False)
+    K = np.exp(rng.uniform(np.log(0.5), np.log(2.0), cs.size))
+    truth = {"K": K, **{k: b.classes[k][cs] for k in ("T_prop", "T1", "tau")}}
+    sim = simulate_relay_batch("attitude", g.beta, 1.0, 0.005, int(8 * g.period[cs].max() * 200), **truth)
+    return g, b, cs, truth, sim, optimal_gains("attitude", 200.0, rule=b.rule, **truth).ise
+
+
 def test_fitted_decision_judges_candidates_on_the_measured_process():
     """Exact relay cycles of grid classes, a belief sure of the true class: the fitted decision
     answers the candidate of least ISE on the process fitted to the cycle, so its answer's J on the
@@ -435,22 +451,11 @@ def test_fitted_decision_judges_candidates_on_the_measured_process():
     from dataclasses import replace as dc_replace
 
     from uavsim.data.generate import class_table_gains
-    from uavsim.data.preprocess import input_length
     from uavsim.ident.evaluate import _score
     from uavsim.ident.session import identify_arrays
-    from uavsim.lumped.simulate import simulate_relay_batch
-    from uavsim.tuning.optimal import optimal_gains
 
-    g, b = _grid_bundle("attitude", 0)
+    g, b, cs, truth, sim, q_opt = _attitude_cycles(3)
     b = dc_replace(b, cost=class_table_gains("attitude", 200.0, None)["J"], temperature=0.05)
-    L = input_length(g)
-    b.input_length = b.predictor.input_length = L
-    rng = np.random.default_rng(3)
-    cs = rng.choice(g.n, 4, replace=False)
-    K = np.exp(rng.uniform(np.log(0.5), np.log(2.0), cs.size))
-    truth = {"K": K, **{k: b.classes[k][cs] for k in ("T_prop", "T1", "tau")}}
-    sim = simulate_relay_batch("attitude", g.beta, 1.0, 0.005, int(8 * g.period[cs].max() * 200), **truth)
-    q_opt = optimal_gains("attitude", 200.0, rule=b.rule, **truth).ise
     for j, c in enumerate(cs):
         b.predictor.cls = int(c)
         J = {}
@@ -462,3 +467,30 @@ def test_fitted_decision_judges_candidates_on_the_measured_process():
             J[dec] = _score("attitude", 200.0, truth, q_opt, np.array([j]), gn["kp"], gn["kd"],
                             gn["derivative_filter_hz"])[0]
         assert np.isfinite(J["fitted"]) and J["fitted"] <= J["bayes"] * (1 + 1e-6) and J["fitted"] < 1.05
+
+
+def test_guard_backs_off_only_a_pd_the_measured_process_cannot_hold():
+    """Exact relay cycles of attitude grid classes (the true process is the class, K random): the
+    table's robust PD holds 5 degrees more lag, so the guard leaves it (factor 1, identification's
+    gains unchanged); the same PD 1.8 times too aggressive is backed off, and the guarded PD's J on
+    the true process (exact sampled ISE at 200 Hz) is finite and below the unguarded one's."""
+    from uavsim.ident.evaluate import _score
+    from uavsim.ident.gains import table_gains
+    from uavsim.ident.guard import guard_scale
+    from uavsim.ident.session import identify_arrays
+
+    g, b, cs, truth, sim, q_opt = _attitude_cycles(11)
+    for j, c in enumerate(cs):
+        b.predictor.cls = int(c)
+        ans = identify_arrays(-sim["e"][j], sim["u"][j], rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta,
+                              guard=True)
+        assert ans["guard"]["scale"] == 1.0 and ans["gains"] == ans["gains_table"] and ans["guard"]["latency_ms"] > 0
+        resp, per = [ans["response"]["gain"] * np.exp(1j * np.radians(ans["response"]["phase_deg"]))], \
+            [2 * np.pi / ans["response"]["omega"]]
+        t = table_gains(b, [c], [ans["table"]["K_hat"]])
+        hot = {"kp": 1.8 * t["kp"], "kd": 1.8 * t["kd"], "derivative_filter_hz": t["derivative_filter_hz"]}
+        s = guard_scale(b, [c], resp, per, **hot)
+        assert s.shape == (1,) and s[0] < 1.0
+        J_hot, J_guarded = (_score("attitude", 200.0, truth, q_opt, np.array([j]), f * hot["kp"], f * hot["kd"],
+                                   hot["derivative_filter_hz"])[0] for f in (1.0, s[0]))
+        assert np.isfinite(J_guarded) and J_guarded < J_hot

@@ -42,6 +42,9 @@ def register(subparsers) -> None:
     p.add_argument("--decision", choices=["bayes", "argmax", "fitted"], default=None,
                    help="identification's class decision (default: the bundle's, the trainer's choice); the "
                         "rows answer_bayes, answer_argmax and answer_fitted score all three in the same run")
+    p.add_argument("--guard", action="store_true",
+                   help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard); the row "
+                        "answer_guarded scores the guard in every run")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -68,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
-                    optimum=args.optimum, decision=args.decision)
+                    optimum=args.optimum, decision=args.decision, guard=args.guard)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

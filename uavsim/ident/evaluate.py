@@ -29,6 +29,9 @@ In the same run, on the same episodes (controls and alternatives):
 * ``rule_on_truth``: the grid's rule applied to the true process (its 10 Omega filter);
 * ``answer_x0.85``: the answer's ``kp`` and ``kd`` times 0.85 (a plain detuning,
   which a metric that cannot tell must not pass);
+* ``answer_guarded``: the answer's table PD backed off by the phase-margin guard
+  (``uavsim.ident.guard``: a factor in 0.5-1 only where the answer's fitted model with
+  5 degrees more lag needs it), to be judged against that detuning;
 * the class decisions (``uavsim.ident.select``), each scored like the answer (refusals
   are failures): ``answer_bayes`` (least expected J under the network's softmax over
   the bundle's cost matrix, at the bundle's temperature) and ``answer_argmax`` (the most likely class), both with the
@@ -65,6 +68,7 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
+from uavsim.ident.guard import guard_scale
 from uavsim.ident.select import decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
@@ -100,6 +104,7 @@ class EvalSpec:
     att_classes : lateral: the attitude classes (default: every one with a network)
     optimum : identification's ``optimum`` mode (``uavsim.ident.session``)
     decision : identification's class decision (``uavsim.ident.select``; None: the bundle's)
+    guard : identification backs its PD off by the phase-margin guard (``uavsim.ident.guard``)
     """
 
     loop: str = "altitude"
@@ -111,6 +116,7 @@ class EvalSpec:
     att_classes: tuple[int, ...] | None = None
     optimum: str = "never"
     decision: str | None = None
+    guard: bool = False
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -240,8 +246,8 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
     return out
 
 
-def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None
-                  ) -> dict[str, Any]:
+def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
+                  guard: bool = False) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones)."""
     from uavsim.data.preprocess import features
 
@@ -255,7 +261,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
         try:
             t0 = time.perf_counter()
             f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, **kw)
-            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision)
+            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             res["why"][i] = str(exc)
@@ -295,10 +301,19 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
     col = lambda key, sub: np.array([ans[i][key][sub] for i in gi], dtype=np.float64)  # noqa: E731
     J["answer"] = np.full(n, _FAIL)
     J[f"answer_x{DETUNE:g}"] = np.full(n, _FAIL)
+    J["answer_guarded"] = np.full(n, _FAIL)
     if gi.size:
         kp, kd, fhz = (col("gains", k) for k in ("kp", "kd", "derivative_filter_hz"))
         J["answer"][gi] = _score(fam, rate, truth, q_opt, gi, kp, kd, fhz)
         J[f"answer_x{DETUNE:g}"][gi] = _score(fam, rate, truth, q_opt, gi, DETUNE * kp, DETUNE * kd, fhz)
+        # the guard on the table's answer (the answers' own factor where identification applied it)
+        tkp, tkd, tfhz = (col("gains_table", k) for k in ("kp", "kd", "derivative_filter_hz"))
+        if all("guard" in ans[i] for i in gi):
+            s_g = np.array([ans[i]["guard"]["scale"] for i in gi])
+        else:
+            s_g = guard_scale(bundle, [ans[i]["class"] for i in gi], ids["response"][gi], ids["response_period"][gi],
+                              kp=tkp, kd=tkd, derivative_filter_hz=tfhz)
+        J["answer_guarded"][gi] = _score(fam, rate, truth, q_opt, gi, s_g * tkp, s_g * tkd, tfhz)
     J["rule_on_truth"] = _score(fam, rate, truth, q_opt, np.arange(n), rule_gains["kp"], rule_gains["kd"],
                                 rule_gains["derivative_filter_hz"])
     # controls and alternatives need a measured cycle (refused episodes included where one exists)
@@ -417,7 +432,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        ids = _identify_all(b, sim, r, spec.optimum, spec.decision)
+        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard)
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,

@@ -58,7 +58,8 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 
 
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
-                   attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
+                   attitude: dict[str, float] | None = None, decision: str | None = None,
+                   guard: bool = False) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -75,12 +76,16 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         fitted model and its optimum, not the table's answer.
     decision : ``"bayes"``, ``"argmax"``, ``"fitted"`` or None
         The class decision (``uavsim.ident.select``); None: the bundle's (``ModelBundle.decision``).
+    guard : bool
+        Back the table's PD off where the answer's fitted model with a few degrees more lag
+        needs it (``uavsim.ident.guard``; the answer's ``guard``: ``scale``, ``phase_deg``,
+        ``latency_ms``). Not applied to an optimum answered.
 
     Returns
     -------
     dict: ``loop``, ``class``, ``params`` (the fitted model), ``gains`` (kp, kd,
     derivative_filter_hz), ``gains_source`` (``table`` or ``optimum``), ``table`` (class,
-    ``K_hat``, rate), ``gains_table``, ``gains_optimum`` (when computed, with ``latency_ms`` and
+    ``K_hat``, rate), ``gains_table`` (unguarded), ``guard`` (with ``guard``), ``gains_optimum`` (when computed, with ``latency_ms`` and
     ``ise``), ``gains_measured_point``, ``off_grid``, ``class_params``, ``decision`` (``decision``,
     ``expected_J`` of the class answered, ``class_argmax``, ``softmax`` of the class answered),
     ``softmax_top``, ``oscillation`` and ``response``.
@@ -112,6 +117,14 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     ans["table"] = {"class": c, "K_hat": float(K_hat[0]), "rate_hz": bundle.rate_hz, "answer": "robust",
                     "gain_estimate": "K_hat = |G(jw)| / |G_class(jw)| at the measured w"}
     ans["gains_table"] = _floats(g_tab)
+    if guard:
+        from uavsim.ident.guard import GUARD_PHASE_DEG, guard_scale
+
+        t0 = time.perf_counter()
+        s = float(guard_scale(bundle, [c], [f.response], [f.response_period], kp=g_tab["kp"], kd=g_tab["kd"],
+                              derivative_filter_hz=g_tab["derivative_filter_hz"])[0])
+        ans["guard"] = {"scale": s, "phase_deg": GUARD_PHASE_DEG, "latency_ms": 1e3 * (time.perf_counter() - t0)}
+        ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
     ans["off_grid"] = bool(off)
     if optimum == "always" or (optimum == "auto" and off):
         t0 = time.perf_counter()
@@ -138,14 +151,15 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
                     beta: float | None = None, optimum: str = "never",
-                    attitude: dict[str, float] | None = None, decision: str | None = None) -> dict[str, Any]:
+                    attitude: dict[str, float] | None = None, decision: str | None = None,
+                    guard: bool = False) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
     ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's).
     """
     f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
-    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision)
+    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision, guard=guard)
 
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
