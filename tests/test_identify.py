@@ -199,6 +199,13 @@ def test_cli_json_and_errors(setup, tmp_path):
     assert res.returncode == 0, res.stderr
     ans = json.loads(res.stdout)
     assert set(ans) >= {"loop", "class", "params", "gains", "gains_source"} and ans["class"] == TRUE
+    assert "guard" not in ans
+    g = identify_session(setup["session"], models=setup["model"], guard=True)  # what --guard asks for
+    s = g["guard"]["scale"]
+    assert 0.5 <= s <= 1.0 and g["gains"]["kp"] == pytest.approx(s * ans["gains_table"]["kp"])
+    res = subprocess.run(cmd + [str(setup["session"]), "--models", str(setup["model"]), "--guard", "--json"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0 and json.loads(res.stdout)["guard"]["scale"] == s
 
     def cut(run):
         for a in ("t", "r", "y", "u"):

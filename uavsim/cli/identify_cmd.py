@@ -45,6 +45,9 @@ def register(subparsers) -> None:
                    help="class decision: least expected log J over the network's cost matrix (bayes) or the most likely "
                         "class (argmax), or the candidates judged on the top classes' models fitted to the measured cycle "
                         "(fitted, a few ms); default: the bundle's (the trainer's choice on validation)")
+    p.add_argument("--guard", action="store_true",
+                   help="back the table's PD off where the identified model with 5 degrees more lag needs it "
+                        "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default off")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from uavsim.ident.session import identify_session, write_model
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
-                           optimum=args.optimum, decision=args.decision)
+                           optimum=args.optimum, decision=args.decision, guard=args.guard)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)

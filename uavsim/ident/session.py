@@ -164,7 +164,7 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, b
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
-                     optimum: str = "never", decision: str | None = None) -> dict[str, Any]:
+                     optimum: str = "never", decision: str | None = None, guard: bool = False) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -181,7 +181,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         over (what identification of its roll or pitch session gave); picks ``lateral/aNN``.
     attitude : dict or None
         Lateral only: the flight's attitude loop when known (``identify_cycle``).
-    optimum, decision : str
+    optimum, decision, guard : str, str, bool
         ``identify_cycle``'s.
 
     Returns
@@ -215,7 +215,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
     ans = identify_arrays(r.data.y, r.data.u, rate_hz=s.control_rate_hz, h=float(r.spec.h),
                           bias=float(r.spec.bias or 0.0), bundle=b, beta=r.spec.beta, optimum=optimum,
-                          attitude=attitude, decision=decision)
+                          attitude=attitude, decision=decision, guard=guard)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
     ans["model_dir"] = str(d)
