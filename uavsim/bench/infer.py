@@ -7,8 +7,9 @@ the exported network (``Predictor``: the folded weights of ``weights.npz`` run
 as a numpy matmul chain, no torch) on one input, the model fit and the
 table's gains (``identify_cycle``). The goal is on that whole identification
 (``identification``, <= 2 ms median on one thread); its stages are reported
-beside it, and the optional optimum of the fitted model (``--optimum``,
-``fitted_optimum``). Each is timed ``--reps`` times on a 10 s,
+beside it, with two opt-in additions: the phase-margin guard
+(``identify --guard``: ``identification_guarded``, the whole identification with it)
+and the optimum of the fitted model (``--optimum``, ``fitted_optimum``). Each is timed ``--reps`` times on a 10 s,
 200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
 with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
 
@@ -120,7 +121,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         x0 = extract_cycle(y, u, **kw).x
         for _ in range(20):  # warm-up (caches)
             identify_arrays(y, u, beta=g.beta, **kw)
-        t_pre, t_net, t_all, t_base, t_opt = (np.empty(reps) for _ in range(5))
+        t_pre, t_net, t_all, t_base, t_opt, t_grd = (np.empty(reps) for _ in range(6))
         f = extract_cycle(y, u, **kw)
         c = choose_class(b, pred.activations(f.x))
         model = fitted_model(b, c, np.array([f.response]), np.array([f.response_period]))
@@ -143,7 +144,9 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
                     if j < len(W) - 1:
                         np.maximum(h, 0.0, out=h)
             t4 = time.perf_counter()
-            t_pre[i], t_net[i], t_all[i], t_base[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3
+            identify_arrays(y, u, beta=g.beta, guard=True, **kw)
+            t5 = time.perf_counter()
+            t_pre[i], t_net[i], t_all[i], t_base[i], t_grd[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4
         for i in range(max(1, reps // 10)):  # the optional optimum: 10-20 ms each
             t0 = time.perf_counter()
             model_optimum(b, model, start=start)
@@ -154,7 +157,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         "trained_model": trained, "model_dir": str(d) if trained else "(random weights, same shape)",
         "input": [pred.channels, L], "n_classes": pred.n_classes, "threads": torch.get_num_threads(), "reps": reps,
         "preprocess": _stats(t_pre), "network": _stats(t_net), "preprocess_plus_network": _stats(t_pre + t_net),
-        "identification": _stats(t_all), "fitted_optimum": _stats(t_opt),
+        "identification": _stats(t_all), "identification_guarded": _stats(t_grd), "fitted_optimum": _stats(t_opt),
         "baseline_numpy_forward": _stats(t_base) if W is not None else None, "goal_ms": GOAL_MS,
         "blas_threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
     }
@@ -227,8 +230,8 @@ def _run(args: argparse.Namespace) -> int:
         print_json(out)
         return 0
     rows = []
-    for k in ("preprocess", "network", "preprocess_plus_network", "identification", "fitted_optimum",
-              "baseline_numpy_forward"):
+    for k in ("preprocess", "network", "preprocess_plus_network", "identification", "identification_guarded",
+              "fitted_optimum", "baseline_numpy_forward"):
         if out.get(k):
             rows.append({"stage": k, **out[k]})
     print_table(rows)
