@@ -46,7 +46,7 @@ GUARD_SCALES = (1.0, 0.97, 0.94, 0.91, 0.88, 0.85, 0.82, 0.79, 0.76, 0.73, 0.7, 
 
 def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, derivative_filter_hz,
                 phase_deg: float = GUARD_PHASE_DEG, ratio: float = GUARD_RATIO,
-                scales=GUARD_SCALES) -> np.ndarray:
+                scales=GUARD_SCALES, model: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """The factor of each answer's ``kp`` and ``kd`` (module docstring), (m,) float64 in ``scales``.
 
     Parameters
@@ -59,6 +59,9 @@ def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, 
         The answers' PDs (``table_gains`` of ``cls`` over the fitted gain), filter in Hz.
     phase_deg, ratio, scales
         The margin, the ISE ratio a factor must keep, the factors (largest first).
+    model : dict or None
+        The answers' fitted models where the caller has them (``fitted_model`` of ``cls``,
+        e.g. with the flight's attitude loop); None: fitted here with the bundle's.
     """
     from uavsim.ident.gains import fitted_model, model_loop_params
     from uavsim.lumped.sampled import lift, sampled_ise
@@ -69,7 +72,8 @@ def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, 
     kp, kd, fhz = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (kp, kd, derivative_filter_hz))
     sc = np.asarray(scales, dtype=np.float64)
     out = np.ones(cls.size)
-    model = fitted_model(bundle, cls, resp, per)
+    if model is None:
+        model = fitted_model(bundle, cls, resp, per)
     pk = model_loop_params(bundle, model)
     pk["tau"] = pk["tau"] + np.radians(phase_deg) * per / (2.0 * np.pi)
     ok = (np.isfinite(pk["K"]) & (pk["K"] > 0) & np.isfinite(pk["tau"]) & np.isfinite(kp) & (kp > 0)

@@ -122,7 +122,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 
         t0 = time.perf_counter()
         s = float(guard_scale(bundle, [c], [f.response], [f.response_period], kp=g_tab["kp"], kd=g_tab["kd"],
-                              derivative_filter_hz=g_tab["derivative_filter_hz"])[0])
+                              derivative_filter_hz=g_tab["derivative_filter_hz"], model=model)[0])
         ans["guard"] = {"scale": s, "phase_deg": GUARD_PHASE_DEG, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
     ans["off_grid"] = bool(off)
