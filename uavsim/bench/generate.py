@@ -18,6 +18,15 @@ how busy the machine is:
 The four are interleaved ``--repeats`` times and each reported figure is the
 best of its repeats (the machine is shared: the best run is the least disturbed).
 
+Beside the wall figures, the process CPU time of each (``time.process_time``, all
+threads) is reported as a diagnostic: ``gen_cpu_s`` and ``raw_cpu_s`` (the least
+over every raw arrangement and repeat, the strictest baseline) and
+``cpu_ratio_to_raw`` = raw / generation CPU seconds: the work generation adds to
+the stepping. On a shared machine it moves much less than the wall ratio, whose
+runs other jobs slow unequally (an arrangement with more threads gets a larger
+share of a loaded machine). It is not the goal: an idle core costs wall time
+but no CPU time.
+
     uavsim bench generate --json
 """
 
@@ -63,8 +72,8 @@ level = [0.0, 0.2]
 RAW_ARRANGEMENTS = {"sequential": (1, "all"), "concurrent": (2, "all"), "split": (2, "split")}
 
 
-def _raw_wall(recipe, arrangement: str) -> float:
-    """Wall seconds of ``Batch.step`` alone over every batch of the recipe's plan.
+def _raw_wall(recipe, arrangement: str) -> tuple[float, float]:
+    """Wall and process CPU seconds of ``Batch.step`` alone over every batch of the recipe's plan.
 
     Batches run longest first (as generation runs them), ``RAW_ARRANGEMENTS[arrangement]``:
     one after another on all CPUs, two at a time on all CPUs each, or two at a time with
@@ -92,10 +101,10 @@ def _raw_wall(recipe, arrangement: str) -> float:
         for _ in range(T):
             lb.batch.step(nstep=lb.rate_steps)
 
-    t0 = time.perf_counter()
+    c0, t0 = time.process_time(), time.perf_counter()
     with cf.ThreadPoolExecutor(max_workers=workers) as ex:
         list(ex.map(step, batches))
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def bench_generate(n_classes: int = 26, per_class: int = 16, chunk: int = 104, workers: int | None = None,
@@ -115,23 +124,35 @@ def bench_generate(n_classes: int = 26, per_class: int = 16, chunk: int = 104, w
     classes = list(range(0, g.n, step))[:n_classes]
     text = BENCH_RECIPE.format(classes=classes, per_class=per_class, chunk=chunk)
     walls: dict[str, list[float]] = {a: [] for a in RAW_ARRANGEMENTS}
-    gen = []
+    cpus: dict[str, list[float]] = {a: [] for a in RAW_ARRANGEMENTS}
+    gen, gen_cpu = [], []
+
+    def raw_run(arrangement: str) -> None:
+        wall, cpu = _raw_wall(recipe, arrangement)
+        walls[arrangement].append(wall)
+        cpus[arrangement].append(cpu)
+
     with tempfile.TemporaryDirectory() as tmp:
         recipe = parse_recipe(text, str(Path(tmp) / "bench.toml"), "bench")
         for k in range(max(1, repeats)):
-            walls["sequential"].append(_raw_wall(recipe, "sequential"))
+            raw_run("sequential")
+            c0 = time.process_time()
             s = generate(recipe, Path(tmp) / f"bench{k}.h5", workers=workers, progress=False)
+            gen_cpu.append(time.process_time() - c0)
             gen.append(s)
-            walls["concurrent"].append(_raw_wall(recipe, "concurrent"))
-            walls["split"].append(_raw_wall(recipe, "split"))
+            raw_run("concurrent")
+            raw_run("split")
     best = min(gen, key=lambda x: x["wall_s"])
     raw_wall = min(min(v) for v in walls.values())  # the fastest arrangement is the baseline
     raw = best["simulated_s"] / raw_wall
+    raw_cpu = min(min(v) for v in cpus.values())
     return {"episodes": best["episodes_run"], "classes": len(classes), "repeats": len(gen),
             "simulated_s": best["simulated_s"], "wall_s": best["wall_s"], "wall_s_all": [x["wall_s"] for x in gen],
             "episodes_per_s": best["episodes_per_s"], "sim_s_per_wall_s": best["sim_s_per_wall_s"],
             "raw_wall_s": raw_wall, **{f"raw_{a}_wall_s": v for a, v in walls.items()},
             "raw_sim_s_per_wall_s": raw, "ratio_to_raw": best["sim_s_per_wall_s"] / raw,
+            "gen_cpu_s": min(gen_cpu), "gen_cpu_s_all": gen_cpu, "raw_cpu_s": raw_cpu,
+            **{f"raw_{a}_cpu_s": v for a, v in cpus.items()}, "cpu_ratio_to_raw": raw_cpu / min(gen_cpu),
             "n_kept": best["n_kept"], "n_rejected": best["n_rejected"], "n_diverged": best["n_diverged"]}
 
 
