@@ -104,6 +104,23 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
     return decide(activations, bundle.cost, decision=decision or bundle.decision, temperature=bundle.temperature)
 
 
+def _belief(bundle: ModelBundle, activations, response, response_period, name: str):
+    """The softmax (m, n), responses (m,), periods (m,) and expected costs (m, n) a decision over
+    fitted models starts from; a one-line error without the cost matrix or with mismatched inputs."""
+    from uavsim.learning.decision import expected_cost, softmax
+
+    if bundle.cost is None:
+        raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the {name} decision "
+                        "needs: retrain, or decide by argmax")
+    p = softmax(activations, bundle.temperature)
+    resp = np.atleast_1d(np.asarray(response, dtype=np.complex128))
+    per = np.atleast_1d(np.asarray(response_period, dtype=np.float64))
+    if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
+        raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
+    ec = expected_cost(p, bundle.cost)
+    return p, resp, per, ec
+
+
 def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
                   beliefs: int = FITTED_BELIEFS, candidates: int = FITTED_CANDIDATES) -> Decision:
     """The class of least expected log ISE ratio over the belief's fitted models (module docstring).
@@ -124,18 +141,10 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         ratio to the best candidate on each fitted model.
     """
     from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
-    from uavsim.learning.decision import COST_CLIP, expected_cost, softmax
+    from uavsim.learning.decision import COST_CLIP
     from uavsim.lumped.sampled import lift, sampled_ise
 
-    if bundle.cost is None:
-        raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the fitted decision "
-                        "needs: retrain, or decide by argmax")
-    p = softmax(activations, bundle.temperature)
-    resp = np.atleast_1d(np.asarray(response, dtype=np.complex128))
-    per = np.atleast_1d(np.asarray(response_period, dtype=np.float64))
-    if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
-        raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
-    ec = expected_cost(p, bundle.cost)
+    p, resp, per, ec = _belief(bundle, activations, response, response_period, "fitted")
     cls = np.argmin(ec, axis=1)
     score = np.zeros(p.shape[0])
     for m in range(p.shape[0]):
@@ -193,19 +202,10 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
         Bayes's); ``scale`` the factor answered.
     """
     from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
-    from uavsim.learning.decision import expected_cost, softmax
     from uavsim.lumped.params import RANGES
     from uavsim.lumped.sampled import lift, sampled_ise
 
-    if bundle.cost is None:
-        raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the stable decision "
-                        "needs: retrain, or decide by argmax")
-    p = softmax(activations, bundle.temperature)
-    resp = np.atleast_1d(np.asarray(response, dtype=np.complex128))
-    per = np.atleast_1d(np.asarray(response_period, dtype=np.float64))
-    if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
-        raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
-    ec = expected_cost(p, bundle.cost)
+    p, resp, per, ec = _belief(bundle, activations, response, response_period, "stable")
     n = p.shape[1]
     sc = np.asarray(scales, dtype=np.float64)
     offsets = np.radians([0.0, -phase_deg, phase_deg])
