@@ -41,7 +41,7 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.select import decide_class
+from uavsim.ident.select import StableDecision, decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -74,8 +74,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Lateral only: the flight's attitude loop when known better than the bundle's
         (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
         fitted model and its optimum, not the table's answer.
-    decision : ``"bayes"``, ``"argmax"``, ``"fitted"`` or None
-        The class decision (``uavsim.ident.select``); None: the bundle's (``ModelBundle.decision``).
+    decision : ``"bayes"``, ``"argmax"``, ``"fitted"``, ``"stable"`` or None
+        The class decision (``uavsim.ident.select``); None: the loop's default
+        (``DEFAULT_DECISION``: ``stable`` on lateral loops), else the bundle's (``ModelBundle.decision``).
     guard : bool
         Back the table's PD off where the answer's fitted model with a few degrees more lag
         needs it (``uavsim.ident.guard``; the answer's ``guard``: ``scale``, ``phase_deg``,
@@ -101,6 +102,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if not (np.isfinite(K_hat[0]) and K_hat[0] > 0):
         raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
     g_tab = table_gains(bundle, [c], K_hat)
+    dec_scale = float(dec.scale[0]) if isinstance(dec, StableDecision) else 1.0
+    if dec_scale != 1.0:  # the stable decision's factor on the class's PD
+        g_tab = {**g_tab, "kp": dec_scale * g_tab["kp"], "kd": dec_scale * g_tab["kd"]}
     tau, tau_c = float(model["tau"][0]), float(model["tau_class"][0])
     off = abs(tau - tau_c) > max(OFF_GRID_TAU[0], OFF_GRID_TAU[1] * tau_c)
     ans: dict[str, Any] = {"loop": bundle.loop, "class": c}
@@ -140,7 +144,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                               rate_hz=bundle.input_rate_hz)
     ans["gains_measured_point"] = _floats(gm)
     ans["decision"] = {"decision": dec.decision, "expected_J": None if np.isnan(dec.expected_J[0]) else
-                       float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c])}
+                       float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c]),
+                       "scale": dec_scale}
     ans["softmax_top"] = float(dec.p[0, c])
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
                           "stop": f.stop}
