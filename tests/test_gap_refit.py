@@ -69,3 +69,19 @@ def test_analyse_flies_the_refit_model_as_base(monkeypatch, clean):
     assert any(m.startswith("refit on ") for m in msgs)
     off = iterate.analyse(s, candidates=("gain",), max_effects=1, nthread=1, refit=False)
     assert off.base is start
+
+
+def test_absorbed_reads_the_refits_phase_at_the_cycle():
+    cls = {"T_prop": 0.03, "T1": 0.5, "tau": 0.01}
+    ident = {"params": {"tau": 0.01}, "class_params": cls, "oscillation": {"period": 0.4}}
+    # the refit put a lag in T_prop, not in tau: identify's tau alone shows nothing
+    lagged = {"accepted": True, "model": {**cls, "T_prop": 0.06}, "moved": {"K": 1.0, "T_prop": 2.0, "T1": 1.0,
+                                                                           "tau": 1.0}}  # fmt: skip
+    assert iterate.absorbed_by(ident) is None
+    a = iterate.absorbed_by({**ident, "refit": lagged})
+    assert a is not None and a["moved_s"] > iterate.ABSORB_REFIT_SHARE * 0.4 and a["refit"]["T_prop"] == 2.0
+    # a refit that stays at the class's phase absorbed nothing, whatever identify's tau said
+    same = {**lagged, "model": dict(cls)}
+    assert iterate.absorbed_by({**ident, "params": {"tau": 0.05}, "refit": same}) is None
+    # a refit that was not kept leaves identify's reading
+    assert iterate.absorbed_by({**ident, "params": {"tau": 0.05}, "refit": {**lagged, "accepted": False}}) is not None
