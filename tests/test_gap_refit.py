@@ -67,6 +67,7 @@ def test_analyse_flies_the_refit_model_as_base(monkeypatch, clean):
     true = clean.model
     assert abs(flow.base.K / flow.base.T1 - true.K / true.T1) < abs(start.K / start.T1 - true.K / true.T1)
     assert any(m.startswith("refit on ") for m in msgs)
+    assert "refit on all runs: gap " in iterate.format_flow(flow)
     off = iterate.analyse(s, candidates=("gain",), max_effects=1, nthread=1, refit=False)
     assert off.base is start
 

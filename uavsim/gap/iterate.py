@@ -5,7 +5,12 @@
 1. **Base model.** The session's ``[model]``, a model given by the caller, or,
    when there is neither, the model identified from the session's first live
    relay run (``uavsim identify``'s network and fit,
-   :func:`uavsim.ident.session.identify_session`), saying so.
+   :func:`uavsim.ident.session.identify_session`), saying so. An identified
+   model is then refitted on every live run (``K``, ``T_prop``, ``T1``,
+   ``tau``: :func:`uavsim.gap.refit.refit_base`; one relay cycle cannot split the
+   lag between ``T_prop`` and ``tau``), and the refit, when it beats the
+   identified model, is the base model; its moves are recorded
+   (``identification["refit"]``).
 2. **Dead runs.** Measured runs that hold no analysable cycle (a relay that
    stopped oscillating) are dropped, and named; that the relay lost its cycle
    is kept as part of the answer.
@@ -21,9 +26,9 @@
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
    clean sessions of the testbed vehicle, development seeds), ``absorbed``
-   when it is and the identified model shows a phase lag beyond its class's
-   (a linear delay, lag or low-pass moved the identified ``tau``: reported
-   with the move), else ``unexplained`` with the residual's character
+   when it is and the identified (refitted) model shows a phase lag at the
+   cycle beyond its class's (a linear delay, lag or low-pass moved ``tau`` or
+   the lags: reported with the move), else ``unexplained`` with the residual's character
    (:mod:`uavsim.gap.residual`).
 
     flow = analyse(read_session("flights/tb_00011"), models="training/runs", log=print)
@@ -440,6 +445,11 @@ def format_flow(flow: FlowResult) -> str:
     b = flow.base
     lines = [f"base model ({flow.base_source}): K {b.K:.4g}, T_prop {b.T_prop:.4g} s, T1 {b.T1:.4g} s, "
              f"tau {b.tau * 1e3:.1f} ms, noise std {b.noise_std:.3g}"]  # fmt: skip
+    fit = (flow.identification or {}).get("refit")
+    if fit:
+        lines.append(f"refit on all runs: gap {fit['gap_before']:.3f} -> {fit['gap_after']:.3f} "
+                     f"({'kept' if fit['accepted'] else 'not kept'}: "
+                     + ", ".join(f"{k} x{v:.3g}" for k, v in fit["moved"].items()) + ")")  # fmt: skip
     if flow.dropped:
         lines.append("dropped runs (no analysable cycle): " + ", ".join(flow.dropped))
     if flow.answer == "named":
@@ -452,10 +462,15 @@ def format_flow(flow: FlowResult) -> str:
         )
     elif flow.answer == "absorbed":
         a = flow.absorbed
-        lines.append(
-            f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the identified {a['parameter']} "
-            f"to {a['identified'] * 1e3:.1f} ms (class {a['class'] * 1e3:.1f} ms, +{a['moved_s'] * 1e3:.1f} ms)"
-        )
+        if "refit" in a:
+            lines.append(f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the refit model's phase at "
+                         f"the cycle by +{a['moved_s'] * 1e3:.1f} ms of delay beyond its class's "
+                         f"(tau {a['identified'] * 1e3:.1f} ms, class {a['class'] * 1e3:.1f} ms)")  # fmt: skip
+        else:
+            lines.append(
+                f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the identified {a['parameter']} "
+                f"to {a['identified'] * 1e3:.1f} ms (class {a['class'] * 1e3:.1f} ms, +{a['moved_s'] * 1e3:.1f} ms)"
+            )
     else:
         lines.append(f"answer: {flow.answer}")
     lines.append(
