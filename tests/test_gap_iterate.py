@@ -14,6 +14,7 @@ import pytest
 from uavsim.errors import UserError
 from uavsim.formats.session import EffectSpec, ModelSpec, Run, RunData, RunSpec, Session
 from uavsim.gap import iterate
+from uavsim.gap.refit import PARAMS, RefitResult
 from uavsim.gap.residual import residual_character, run_residual
 from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import GapResult, UnflownRun
@@ -63,7 +64,14 @@ def _script(monkeypatch, answers):
                          sims_before=sims, sims_after=sims)  # fmt: skip
 
     monkeypatch.setattr(iterate, "run_gap", fake)
+    # the refit of an identified model flies the loop: scripted searches keep the model (test_gap_refit.py tests it)
+    monkeypatch.setattr(iterate, "refit_base", _no_refit)
     return calls
+
+
+def _no_refit(session, model, **kw):
+    return RefitResult(model=model, start=model, gap_before=1.0, gap_after=1.0, moved=dict.fromkeys(PARAMS, 1.0),
+                       accepted=False, iterations=0, episodes=0, seconds=0.0)  # fmt: skip
 
 
 def test_second_effect_is_searched_on_what_is_left(monkeypatch):

@@ -63,6 +63,9 @@ class Episode:
         Taken off the model's ``tau`` for this episode, s (``tau`` stays >= 0):
         a candidate that adds phase where the model's ``tau`` was fitted takes
         that phase back out of it.
+    model : ModelSpec, optional
+        This episode's lumped parameters (``K``, ``T_prop``, ``T1``, ``tau``) instead of
+        the batch's model (its noise stays the batch's): a refit flies many models in one batch.
     """
 
     run: int
@@ -70,6 +73,7 @@ class Episode:
     value: float = 0.0
     seed: int = 0
     tau_shift: float = 0.0
+    model: ModelSpec | None = None
 
 
 @dataclass
@@ -232,7 +236,9 @@ def simulate(
     names = [e.effect for e in plans]
     values = [e.value for e in plans]
     fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
-    ps = [p if e.tau_shift == 0.0 else dataclasses.replace(p, tau=max(p.tau - e.tau_shift, 0.0)) for e in plans]
+    ps = [p if e.model is None else model_params(session, e.model) for e in plans]
+    ps = [q if e.tau_shift == 0.0 else dataclasses.replace(q, tau=max(q.tau - e.tau_shift, 0.0))
+          for q, e in zip(ps, plans, strict=True)]
     lb = LoopBatch(ps, dt=dt, rate_hz=rate, effects=fx, seed=seed, nthread=nthread)
     ref = np.stack([run_reference(session.runs[e.run], T, rate) for e in plans])
     res = lb.run(SessionController(session.runs, plans, rate, session.reading), T / rate, reference=ref)

@@ -1,0 +1,233 @@
+"""Refit an identified base model's continuous parameters on every run of the session.
+
+Identification (:func:`uavsim.gap.iterate.identify_base`) reads the model off
+one relay cycle: the network's class gives ``T_prop`` and ``T1`` on a grid,
+the fit puts ``K`` and ``tau`` on the cycle's amplitude and phase. One cycle
+cannot split the loop's lag between ``T_prop`` and ``tau``, and the class grid
+is coarse, so the model flies the session's other runs (the second relay, the
+steps) worse than the vehicle's own lumped equivalent does: a clean session
+keeps a gap that hides the effects the search looks for.
+
+:func:`refit_base` moves ``log K``, ``log T_prop``, ``log T1`` and ``log tau``
+by a bounded, batched pattern search on the gap the workflow itself measures
+(:class:`uavsim.gap.workflow._Evaluator`: the features of every run, the noise
+scales of the starting model's seed spread, fixed during the search). Each
+iteration flies, in one MuJoCo batch, the current point, its moves along each
+parameter and along the two pairs one cycle cannot tell apart (``T_prop``
+against ``tau``: the same phase at the cycle; ``K`` with ``T1``: the same
+high-frequency gain), each with :data:`SEEDS` noise seeds. A move is taken when
+it beats the current point of the same batch; otherwise the steps halve. The
+refit is kept only when, flown again with fresh seeds, it beats the start.
+
+A refit also takes in what a linear model can: a delay, a lag, a low-pass or
+a gain moves ``tau`` or ``K``. :class:`RefitResult` keeps the moves, and
+:func:`uavsim.gap.iterate.absorbed_by` reads them.
+
+    fit = refit_base(session, model, seed=0, log=print)
+    fit.model, fit.gap_before, fit.gap_after, fit.moved
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Session
+from uavsim.gap.features import noise_offsets, noise_scales
+from uavsim.gap.simulate import Episode, simulate
+from uavsim.gap.workflow import _Evaluator
+
+__all__ = ["PARAMS", "RefitResult", "refit_base"]
+
+#: the model's parameters the refit moves (each in its log)
+PARAMS = ("K", "T_prop", "T1", "tau")
+#: first step of each parameter, in its log (about x1.35 for K, x1.65 for the time constants, x2 for tau)
+STEPS = {"K": 0.3, "T_prop": 0.5, "T1": 0.5, "tau": 0.7}
+#: the search stops when every step is below this (a 4% move)
+MIN_STEP = 0.04
+#: most iterations (one batch each)
+ITERATIONS = 8
+#: noise seeds per point and iteration
+SEEDS = 2
+#: fresh seeds for the final comparison of the start and the refit
+VERIFY_SEEDS = 3
+#: the refit moves no parameter further than this factor from its start
+SPAN = 4.0
+#: smallest delay, s (the log needs one; below a control period it is not seen)
+TAU_FLOOR = 0.0005
+
+
+@dataclass
+class RefitResult:
+    """A base model refitted on the session's runs.
+
+    Attributes
+    ----------
+    model : ModelSpec
+        The refitted model (the start when the refit did not beat it).
+    start : ModelSpec
+        The model the refit started from.
+    gap_before, gap_after : float
+        Gap of the start and of the refit, flown with the same fresh seeds (the
+        workflow's features and noise scales).
+    moved : dict of str to float
+        Per parameter, refit over start (1.0: not moved; ``tau``: the same, with the floor).
+    accepted : bool
+        Whether the refit beat the start (else ``model`` is the start).
+    iterations, episodes : int
+        Batches flown in the search and episodes in all.
+    seconds : float
+    """
+
+    model: ModelSpec
+    start: ModelSpec
+    gap_before: float
+    gap_after: float
+    moved: dict[str, float]
+    accepted: bool
+    iterations: int
+    episodes: int
+    seconds: float
+
+    def to_json(self) -> dict:
+        return {
+            "model": dataclasses.asdict(self.model),
+            "start": dataclasses.asdict(self.start),
+            "gap_before": self.gap_before,
+            "gap_after": self.gap_after,
+            "moved": self.moved,
+            "accepted": self.accepted,
+            "iterations": self.iterations,
+            "episodes": self.episodes,
+            "seconds": self.seconds,
+        }
+
+
+def _to_x(model: ModelSpec) -> np.ndarray:
+    v = {k: float(getattr(model, k)) for k in PARAMS}
+    v["tau"] = max(v["tau"], TAU_FLOOR)
+    v["K"] = abs(v["K"])
+    return np.log(np.array([v[k] for k in PARAMS]))
+
+
+def _to_model(start: ModelSpec, x: np.ndarray) -> ModelSpec:
+    v = dict(zip(PARAMS, np.exp(x).tolist(), strict=True))
+    v["K"] = math.copysign(v["K"], float(start.K))
+    return dataclasses.replace(start, **v)
+
+
+def _directions() -> np.ndarray:
+    """Unit moves, one row each (in units of each parameter's step): each axis both ways, and the pairs."""
+    i = {k: j for j, k in enumerate(PARAMS)}
+    rows = []
+    for k in PARAMS:
+        for s in (1.0, -1.0):
+            d = np.zeros(len(PARAMS))
+            d[i[k]] = s
+            rows.append(d)
+    for a, b, sign in (("T_prop", "tau", -1.0), ("K", "T1", 1.0)):
+        for s in (1.0, -1.0):
+            d = np.zeros(len(PARAMS))
+            d[i[a]], d[i[b]] = s, sign * s
+            rows.append(d)
+    return np.array(rows)
+
+
+def _gaps(ev: _Evaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
+    """Mean gap over ``seeds`` noise draws of each model in ``points``, all flown in one batch."""
+    plans = [Episode(i, seed=s, model=m) for m in points for s in range(seeds) for i in range(ev.R)]
+    ev.calls += 1
+    out = simulate(ev.session, ev.model, plans, seed=ev.seed * 1000 + ev.calls, nthread=ev.nthread,
+                   base_effects=ev.base, dt=ev.dt)  # fmt: skip
+    R = ev.R
+    g = [ev.gap(ev.features(out[k * R:(k + 1) * R])) for k in range(len(points) * seeds)]
+    return np.array(g).reshape(len(points), seeds).mean(axis=1)
+
+
+def refit_base(
+    session: Session,
+    model: ModelSpec,
+    *,
+    seed: int = 0,
+    nthread: int = 0,
+    dt: float = 0.001,
+    iterations: int = ITERATIONS,
+    log=None,
+) -> RefitResult:
+    """Refit ``model``'s ``K``, ``T_prop``, ``T1``, ``tau`` on every run of ``session`` (pattern search on the gap).
+
+    Parameters
+    ----------
+    session : Session
+        The runs to fit (each must be analysable: :func:`uavsim.gap.iterate.live_runs`);
+        its ``[[effects]]`` are flown on every point.
+    model : ModelSpec
+        The starting point (an identified base model); its noise std is kept.
+    seed : int
+        Seed of the simulated noise (same seed, same refit).
+    nthread, dt :
+        As :func:`uavsim.gap.workflow.run_gap`.
+    iterations : int
+        Most batches of the search.
+    log : callable(str), optional
+
+    Returns
+    -------
+    RefitResult
+    """
+    t0 = time.perf_counter()
+    log = log or (lambda msg: None)
+    base = {e.name: float(e.params[EFFECT_PARAMS[e.name][0]]) for e in session.effects if e.name != "none"}
+    ev = _Evaluator(session, model, base, seed, nthread, dt)
+    R = ev.R
+    # the noise scales and the sensor's smoothing, from the start's own seed spread, fixed for the search
+    first = ev.sims([("none", 0.0)], seeds=3)
+    fb = [ev.features(s) for s in first]
+    if any(f is None for f in fb[0]):  # the start cannot fly a run: nothing to refit from (the search says so)
+        log("refit not run: the identified model cannot fly every run")
+        return RefitResult(model=model, start=model, gap_before=math.inf, gap_after=math.inf,
+                           moved=dict.fromkeys(PARAMS, 1.0), accepted=False, iterations=0, episodes=3 * R,
+                           seconds=time.perf_counter() - t0)  # fmt: skip
+    ev.scales = noise_scales(fb)
+    ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
+    x0 = _to_x(model)
+    lo, hi = x0 - math.log(SPAN), x0 + math.log(SPAN)
+    lo[PARAMS.index("tau")] = min(lo[PARAMS.index("tau")], math.log(TAU_FLOOR))
+    steps = np.array([STEPS[k] for k in PARAMS])
+    dirs = _directions()
+    x = x0.copy()
+    episodes = 3 * R
+    it = 0
+    for it in range(1, iterations + 1):  # noqa: B007 (the count is reported)
+        cand = np.clip(x + dirs * steps, lo, hi)
+        pts = [_to_model(model, x)] + [_to_model(model, c) for c in cand]
+        g = _gaps(ev, pts, SEEDS)
+        episodes += len(pts) * SEEDS * R
+        j = int(np.argmin(g[1:]))
+        if g[1 + j] < g[0]:
+            x = cand[j]
+            log(f"refit {it}: gap {g[0]:.3f} -> {g[1 + j]:.3f}, "
+                + ", ".join(f"{k} {v:.4g}" for k, v in zip(PARAMS, np.exp(x), strict=True)))  # fmt: skip
+        else:
+            steps = steps / 2
+            if np.all(steps < MIN_STEP):
+                break
+    # the start and the refit with the same fresh seeds: keep the refit only when it is better
+    fit = _to_model(model, x)
+    moved = dict(zip(PARAMS, np.exp(x - x0).tolist(), strict=True))
+    if np.allclose(x, x0):
+        g0 = g1 = float(np.mean([ev.gap(f) for f in fb]))
+    else:
+        g0, g1 = _gaps(ev, [model, fit], VERIFY_SEEDS).tolist()
+        episodes += 2 * VERIFY_SEEDS * R
+    accepted = bool(g1 < g0)
+    res = RefitResult(model=fit if accepted else model, start=model, gap_before=float(g0), gap_after=float(g1),
+                      moved=moved if accepted else dict.fromkeys(PARAMS, 1.0), accepted=accepted,
+                      iterations=it, episodes=episodes, seconds=time.perf_counter() - t0)  # fmt: skip
+    log(f"refit on {R} runs: gap {g0:.3f} -> {g1:.3f} ({'kept' if accepted else 'not kept'}; "
+        + ", ".join(f"{k} x{v:.3g}" for k, v in moved.items()) + f"; {it} batches, {res.seconds:.1f} s)")
+    return res
