@@ -257,17 +257,17 @@ def test_smoother_measurement_is_the_sensors_rougher_stays_evidence():
 
 
 def test_lag_like_candidates_take_their_phase_out_of_tau():
-    from uavsim.gap.workflow import _Evaluator, candidate_phase
+    from uavsim.gap.workflow import GapEvaluator, candidate_phase
 
     assert candidate_phase("lag", 0.05, 1.0 / (2 * math.pi * 0.05)) == pytest.approx(math.pi / 4)
     assert candidate_phase("lowpass", 10.0, 10.0) == pytest.approx(math.pi / 2)
     assert candidate_phase("delay", 0.05, 2.0) == 0.0
     session, _ = hidden_session(3, effect="none")
     model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.02, noise_std=0.0)
-    ev = _Evaluator(session, model, {}, 0, 1, 0.001, anchor_hz=2.0)
+    ev = GapEvaluator(session, model, {}, 0, 1, 0.001, anchor_hz=2.0)
     w = 2 * math.pi * 2.0
     assert ev.tau_shift("lag", 0.01) == pytest.approx(math.atan(w * 0.01) / w)
     assert ev.tau_shift("lag", 1.0) == pytest.approx(0.02)  # never below tau = 0
     assert ev.tau_shift("delay", 0.01) == 0.0
     assert ev.tau_shift("none", 0.0) == 0.0  # the bare model's episodes of an identified session
-    assert _Evaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0
+    assert GapEvaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0

@@ -10,7 +10,7 @@ keeps a gap that hides the effects the search looks for.
 
 :func:`refit_base` moves ``log K``, ``log T_prop``, ``log T1`` and ``log tau``
 by a bounded, batched pattern search on the gap the workflow itself measures
-(:class:`uavsim.gap.workflow._Evaluator`: the features of every run, the noise
+(:class:`uavsim.gap.workflow.GapEvaluator`: the features of every run, the noise
 scales of the starting model's seed spread, fixed during the search). Each
 iteration flies, in one MuJoCo batch, the current point, its moves along each
 parameter and along the two pairs one cycle cannot tell apart (``T_prop``
@@ -39,7 +39,7 @@ import numpy as np
 from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Session
 from uavsim.gap.features import noise_offsets, noise_scales
 from uavsim.gap.simulate import Episode, simulate
-from uavsim.gap.workflow import _Evaluator
+from uavsim.gap.workflow import GapEvaluator
 
 __all__ = ["PARAMS", "RefitResult", "refit_base"]
 
@@ -137,7 +137,7 @@ def _directions() -> np.ndarray:
     return np.array(rows)
 
 
-def _gaps(ev: _Evaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
+def _gaps(ev: GapEvaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
     """Mean gap over ``seeds`` noise draws of each model in ``points``, all flown in one batch."""
     plans = [Episode(i, seed=s, model=m) for m in points for s in range(seeds) for i in range(ev.R)]
     ev.calls += 1
@@ -182,7 +182,7 @@ def refit_base(
     t0 = time.perf_counter()
     log = log or (lambda msg: None)
     base = {e.name: float(e.params[EFFECT_PARAMS[e.name][0]]) for e in session.effects if e.name != "none"}
-    ev = _Evaluator(session, model, base, seed, nthread, dt)
+    ev = GapEvaluator(session, model, base, seed, nthread, dt)
     R = ev.R
     # the noise scales and the sensor's smoothing, from the start's own seed spread, fixed for the search
     first = ev.sims([("none", 0.0)], seeds=3)

@@ -229,8 +229,8 @@ def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: f
     return np.unique(np.concatenate([grid, hint * np.array([0.85, 1.0, 1.15])]))
 
 
-class _Evaluator:
-    """Simulates episodes and scores them against the measured features."""
+class GapEvaluator:
+    """Simulates a session's runs on candidate models and scores them against its measured features (the gap)."""
 
     def __init__(self, session: Session, model: ModelSpec, base: dict[str, float], seed: int, nthread: int,
                  dt: float, anchor_hz: float | None = None):
@@ -273,7 +273,7 @@ class _Evaluator:
         return float(np.mean([gap_value(compare(self.meas, f, sc, self.offsets)) for f in fv]))
 
 
-def _polish(ev: _Evaluator, effect: str, value: float, rate_hz: float) -> tuple[float, float, list[SimRun]]:
+def _polish(ev: GapEvaluator, effect: str, value: float, rate_hz: float) -> tuple[float, float, list[SimRun]]:
     """The winner's value re-fitted on :data:`POLISH` x ``value`` with every point averaged over
     seeds (the grids above score one noise draw each), then re-simulated with fresh seeds.
 
@@ -394,7 +394,7 @@ def run_gap(
         if e.name in base:
             raise SessionError(f"session.toml: effect {e.name!r} listed twice (the gap workflow needs one of each)")
         base[e.name] = float(e.params[EFFECT_PARAMS[e.name][0]])
-    ev = _Evaluator(session, model, base, seed, nthread, dt, phase_anchor_hz)
+    ev = GapEvaluator(session, model, base, seed, nthread, dt, phase_anchor_hz)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
