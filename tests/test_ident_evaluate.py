@@ -95,3 +95,19 @@ def test_cli_small_run(three_model, tmp_path):  # noqa: F811 (fixture)
                                                                           'settings = "fixed"'))
     res = subprocess.run(cmd[:9] + [str(bad), "--n", "2"], capture_output=True, text=True, cwd=ROOT)
     assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("2", "2")])
+def test_cli_runs_blas_on_one_thread_unless_told(monkeypatch, given, expected):
+    # BLAS threads only contend on evaluate's small matrices; a user's own setting is kept
+    from uavsim.cli.main import build_parser
+    from uavsim.errors import UserError
+
+    if given is None:
+        monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    else:
+        monkeypatch.setenv("OPENBLAS_NUM_THREADS", given)
+    args = build_parser(["evaluate"]).parse_args(["evaluate", "--loop", "altitude", "--n", "0"])
+    with pytest.raises(UserError):
+        args.func(args)
+    assert os.environ["OPENBLAS_NUM_THREADS"] == expected

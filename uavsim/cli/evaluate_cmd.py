@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from uavsim.cli._common import eprint, print_json
@@ -53,6 +54,11 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # numpy's BLAS on one thread unless the user says otherwise: the lifted loops are small
+    # matrices, and BLAS threads only contend with MuJoCo's and each other (lateral, 2 cores:
+    # 9.1 s -> 5.1 s at low load, 680-2070 s -> 75-96 s under load; the same rows). It must be
+    # set before numpy is first imported, which this command's imports below do.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from uavsim.errors import UserError
     from uavsim.ident.bundle import default_model_root
     from uavsim.ident.evaluate import EvalSpec, evaluate, markdown
