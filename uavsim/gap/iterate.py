@@ -45,6 +45,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from uavsim.errors import UserError
 from uavsim.formats.session import (
     NP_MRFT_RUN,
@@ -59,6 +61,7 @@ from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
 from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import CANDIDATES, NAME_RATIO, GapResult, UnflownRun, format_table, run_gap
+from uavsim.lumped.frequency import unwrapped_phase_batch
 
 __all__ = [
     "FlowResult",
@@ -245,8 +248,8 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
 
 
 def _phase_lag(p: dict, w: float) -> float:
-    """Phase lag, rad, of the lumped model ``p`` (``T_prop``, ``T1``, ``tau``) at ``w`` rad/s, the integrator left out."""
-    return math.atan(w * float(p["T_prop"])) + math.atan(w * float(p["T1"])) + w * float(p["tau"])
+    """Phase lag, rad, of the inner-loop lumped model ``p`` (``T_prop``, ``T1``, ``tau``) at ``w`` rad/s."""
+    return -float(unwrapped_phase_batch("attitude", np.array([w]), **{k: float(p[k]) for k in ("T_prop", "T1", "tau")})[0, 0])
 
 
 def absorbed_by(ident: dict | None) -> dict | None:
@@ -370,7 +373,6 @@ def analyse(
         log(
             f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)"
         )
-    fit = None
     if source == "identified" and refit:
         fit = refit_base(live, model, seed=seed, nthread=nthread, log=log)
         ident["refit"] = fit.to_json()

@@ -36,10 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavsim.formats.session import EFFECT_PARAMS, ModelSpec, Session
+from uavsim.formats.session import ModelSpec, Session
 from uavsim.gap.features import noise_offsets, noise_scales
-from uavsim.gap.simulate import Episode, simulate
-from uavsim.gap.workflow import GapEvaluator
+from uavsim.gap.simulate import Episode
+from uavsim.gap.workflow import GapEvaluator, base_effects
 
 __all__ = ["PARAMS", "RefitResult", "refit_base"]
 
@@ -140,11 +140,7 @@ def _directions() -> np.ndarray:
 def _gaps(ev: GapEvaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
     """Mean gap over ``seeds`` noise draws of each model in ``points``, all flown in one batch."""
     plans = [Episode(i, seed=s, model=m) for m in points for s in range(seeds) for i in range(ev.R)]
-    ev.calls += 1
-    out = simulate(ev.session, ev.model, plans, seed=ev.seed * 1000 + ev.calls, nthread=ev.nthread,
-                   base_effects=ev.base, dt=ev.dt)  # fmt: skip
-    R = ev.R
-    g = [ev.gap(ev.features(out[k * R:(k + 1) * R])) for k in range(len(points) * seeds)]
+    g = [ev.gap(ev.features(runs)) for runs in ev.fly(plans)]
     return np.array(g).reshape(len(points), seeds).mean(axis=1)
 
 
@@ -181,8 +177,7 @@ def refit_base(
     """
     t0 = time.perf_counter()
     log = log or (lambda msg: None)
-    base = {e.name: float(e.params[EFFECT_PARAMS[e.name][0]]) for e in session.effects if e.name != "none"}
-    ev = GapEvaluator(session, model, base, seed, nthread, dt)
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt)
     R = ev.R
     # the noise scales and the sensor's smoothing, from the start's own seed spread, fixed for the search
     first = ev.sims([("none", 0.0)], seeds=3)

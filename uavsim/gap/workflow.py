@@ -63,7 +63,8 @@ from uavsim.gap.features import (
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
-__all__ = ["CANDIDATES", "GapResult", "UnflownRun", "run_gap", "format_table", "read_model_file", "candidate_grid"]
+__all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table",
+           "read_model_file", "candidate_grid"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -229,6 +230,24 @@ def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: f
     return np.unique(np.concatenate([grid, hint * np.array([0.85, 1.0, 1.15])]))
 
 
+def base_effects(session: Session) -> dict[str, float]:
+    """The session's ``[[effects]]`` as flown on every episode: name -> its first parameter.
+
+    Raises
+    ------
+    SessionError
+        When an effect is listed twice (the workflow needs one of each).
+    """
+    base: dict[str, float] = {}
+    for e in session.effects:
+        if e.name == "none":
+            continue
+        if e.name in base:
+            raise SessionError(f"session.toml: effect {e.name!r} listed twice (the gap workflow needs one of each)")
+        base[e.name] = float(e.params[EFFECT_PARAMS[e.name][0]])
+    return base
+
+
 class GapEvaluator:
     """Simulates a session's runs on candidate models and scores them against its measured features (the gap)."""
 
@@ -246,10 +265,17 @@ class GapEvaluator:
         """Per (candidate, seed), the simulated runs."""
         plans = [Episode(i, name, float(v), s, self.tau_shift(name, float(v)))
                  for name, v in cands for s in range(seeds) for i in range(self.R)]  # fmt: skip
+        return self.fly(plans)
+
+    def fly(self, plans: list[Episode]) -> list[list[SimRun]]:
+        """Fly ``plans`` (every run of the session in order, for each point) in one batch: the runs of each point.
+
+        Each call draws its noise from the next seed of the evaluator's sequence.
+        """
         self.calls += 1
         out = simulate(self.session, self.model, plans, seed=self.seed * 1000 + self.calls,
                        nthread=self.nthread, base_effects=self.base, dt=self.dt)  # fmt: skip
-        return [out[k * self.R:(k + 1) * self.R] for k in range(len(cands) * seeds)]
+        return [out[k * self.R:(k + 1) * self.R] for k in range(len(plans) // self.R)]
 
     def tau_shift(self, name: str, value: float) -> float:
         """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
@@ -387,14 +413,7 @@ def run_gap(
     if model is None:
         raise UserError("the session has no [model] and no --model FILE was given: nothing to compare with")
     model_params(session, model)  # loop support and parameter checks
-    base: dict[str, float] = {}
-    for e in session.effects:
-        if e.name == "none":
-            continue
-        if e.name in base:
-            raise SessionError(f"session.toml: effect {e.name!r} listed twice (the gap workflow needs one of each)")
-        base[e.name] = float(e.params[EFFECT_PARAMS[e.name][0]])
-    ev = GapEvaluator(session, model, base, seed, nthread, dt, phase_anchor_hz)
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt, phase_anchor_hz)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"

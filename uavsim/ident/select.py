@@ -235,10 +235,11 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
             proc = lift(bundle.loop, bundle.rate_hz, **{k: (v[im] if isinstance(v, np.ndarray) else v)
                                                         for k, v in pk.items()})
         A, M = np.repeat(ic, im.size), np.tile(np.arange(im.size), ic.size)
+        pairs, kp, kd, wf = proc.take(M), g["kp"][A], g["kd"][A], 2.0 * np.pi * g["derivative_filter_hz"][A]
         best = (-1.0, 0, 1.0)  # (stable weight, class, factor)
         for f in sc:  # largest factor first: a smaller one answers only where it holds more of the models
             with np.errstate(all="ignore"):
-                q = sampled_ise(proc.take(M), f * g["kp"][A], f * g["kd"][A], 2.0 * np.pi * g["derivative_filter_hz"][A])
+                q = sampled_ise(pairs, f * kp, f * kd, wf)
             frac = (np.isfinite(q) & (q > 0)).reshape(ic.size, im.size) @ wm
             top = ic[frac >= frac.max() - 1e-9]
             if frac.max() > best[0] + 1e-9:
