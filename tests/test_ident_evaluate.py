@@ -83,12 +83,14 @@ def test_cli_small_run(three_model, tmp_path):  # noqa: F811 (fixture)
     assert rows["all"]["rule_on_truth"]["n"] == 5
     full = json.loads((tmp_path / "full.json").read_text())
     assert len(full["episodes"]) == 5 and all("J" in e and "noise_level" in e for e in full["episodes"])
-    # both class decisions scored on the same episodes; the one identification made is the answer
-    assert {"answer_bayes", "answer_argmax", "answer_fitted"} <= set(rows["all"]) and rows["all"]["answer_bayes"] == a
+    # the class decisions scored on the same episodes; the one identification made (the inner loops'
+    # default, blend) is the answer
+    assert {"answer_bayes", "answer_argmax", "answer_fitted", "answer_blend"} <= set(rows["all"])
+    assert rows["all"]["answer_blend"] == a
     assert rows["all"]["answer_fitted"]["n"] == 5 and rows["all"]["answer_fitted"]["refused"] == a["refused"]
     for e in full["episodes"]:
         if e["class"] is not None:
-            assert e["decision"]["decision"] == "bayes" and e["J"]["answer_bayes"] == e["J"]["answer"]
+            assert e["decision"]["decision"] == "blend" and e["J"]["answer_blend"] == e["J"]["answer"]
     assert "| answer |" in md.read_text()
     bad = tmp_path / "fixed.toml"
     bad.write_text((ROOT / "datasets" / "small.toml").read_text().replace('settings = "recommended"',

@@ -73,8 +73,11 @@ def test_identifies_class_gain_and_table_gains(setup):
 
     b = load_bundle(setup["model"])
     assert np.array_equal(b.cost, open_dataset(setup["tmp"] / "three.h5").J) and 0 < b.temperature < 50
-    d = ans["decision"]
-    assert d["decision"] == "bayes" and d["class_argmax"] == TRUE and 1.0 <= d["expected_J"] < 1.5
+    d = ans["decision"]  # the inner loops' default: the grid's cost plus the fitted models' (blend)
+    assert d["decision"] == "blend" and d["class_argmax"] == TRUE and 1.0 <= d["expected_J"] < 1.5
+    bay = identify_session(setup["session"], models=setup["model"], decision="bayes")
+    assert bay["class"] == TRUE and bay["decision"]["decision"] == "bayes"
+    assert bay["decision"]["expected_J"] == pytest.approx(d["expected_J"])
     arg = identify_session(setup["session"], models=setup["model"], decision="argmax")
     assert arg["class"] == TRUE and arg["decision"]["decision"] == "argmax"
     with pytest.raises(UserError, match="decision"):

@@ -123,7 +123,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             identify_arrays(y, u, beta=g.beta, **kw)
         t_pre, t_net, t_all, t_base, t_opt, t_grd = (np.empty(reps) for _ in range(6))
         f = extract_cycle(y, u, **kw)
-        c = choose_class(b, pred.activations(f.x))
+        c = choose_class(b, pred.activations(f.x), decision=b.decision)  # the optimum's start: the grid's class
         model = fitted_model(b, c, np.array([f.response]), np.array([f.response_period]))
         start = table_gains(b, c, model["K"])
         xb = x0.reshape(1, -1).astype(np.float32)

@@ -40,9 +40,9 @@ def register(subparsers) -> None:
     p.add_argument("--att-classes", help="lateral: comma-separated attitude classes (default: every network)")
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="identification's fitted-model optimum mode (default never: the table path)")
-    p.add_argument("--decision", choices=["bayes", "argmax", "fitted", "stable"], default=None,
-                   help="identification's class decision (default: stable on lateral loops, else the bundle's, the trainer's choice); the "
-                        "rows answer_bayes, answer_argmax and answer_fitted score all three in the same run")
+    p.add_argument("--decision", choices=["bayes", "argmax", "fitted", "stable", "blend"], default=None,
+                   help="identification's class decision (default: stable on lateral loops, blend on the inner ones); the "
+                        "rows answer_bayes, answer_argmax, answer_fitted and answer_blend score those in the same run")
     p.add_argument("--guard", action="store_true",
                    help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard); the row "
                         "answer_guarded scores the guard in every run")

@@ -41,11 +41,12 @@ def register(subparsers) -> None:
     p.add_argument("--optimum", choices=["never", "auto", "always"], default="never",
                    help="also optimize the identified model's PD at the control rate (~10-20 ms) and answer it "
                         "when the model is off the grid (auto) or always (default never: the table's answer)")
-    p.add_argument("--decision", choices=["bayes", "argmax", "fitted", "stable"], default=None,
+    p.add_argument("--decision", choices=["bayes", "argmax", "fitted", "stable", "blend"], default=None,
                    help="class decision: least expected log J over the network's cost matrix (bayes) or the most likely "
                         "class (argmax), or the candidates judged on the top classes' models fitted to the measured cycle "
-                        "(fitted, a few ms), or stability on those models first (stable, with a factor on the PD); default: "
-                        "stable on lateral loops, else the bundle's (the trainer's choice on validation)")
+                        "(fitted, a few ms), or stability on those models first (stable, with a factor on the PD), or the "
+                        "fitted cost plus the grid's (blend, a few ms); default: stable on lateral loops, blend on the "
+                        "inner ones (the bundle's decision where it has no cost matrix)")
     p.add_argument("--guard", action="store_true",
                    help="back the table's PD off where the identified model with 5 degrees more lag needs it "
                         "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default off")

@@ -35,7 +35,9 @@ In the same run, on the same episodes (controls and alternatives):
 * the class decisions (``uavsim.ident.select``), each scored like the answer (refusals
   are failures): ``answer_bayes`` (least expected J under the network's softmax over
   the bundle's cost matrix, at the bundle's temperature) and ``answer_argmax`` (the most likely class), both with the
-  answer's gain estimate; the one identification made equals ``answer``;
+  answer's gain estimate; the one identification made equals ``answer``; ``answer_fitted`` and
+  ``answer_blend`` (the candidates judged on the belief's fitted models, blend with the grid's
+  cost added: ``uavsim.ident.select``);
 * alternatives on the network's class: ``table_K_mrft`` (the gain estimated at the
   class's MRFT point, ``K = |G(jw)| / table_gain_at_omega``, instead of fitted at the
   measured frequency), ``table_optimum`` (the class's ISE optimum instead of the
@@ -69,7 +71,7 @@ from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import guard_scale
-from uavsim.ident.select import decide_fitted
+from uavsim.ident.select import decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
 from uavsim.lumped.params import RANGES, LumpedParams
@@ -342,16 +344,16 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
                 if gi.size:
                     c_dec = decide(ids["act"][gi], bundle.cost, decision=dec, temperature=bundle.temperature).cls
                     J["answer_" + dec][gi] = Jall[row, c_dec]
-            if bundle.cost is not None:  # the candidates judged on the belief's fitted models
-                J["answer_fitted"] = np.full(n, _FAIL)
+            # the candidates judged on the belief's fitted models (blend: plus the grid's cost)
+            for dec, fn in (("fitted", decide_fitted), ("blend", decide_blend)) if bundle.cost is not None else ():
+                J["answer_" + dec] = np.full(n, _FAIL)
                 if gi.size:
-                    if all(ans[i]["decision"]["decision"] == "fitted" for i in gi):
-                        # the answers were decided so (--decision fitted): their classes, not a second search
+                    if all(ans[i]["decision"]["decision"] == dec for i in gi):
+                        # the answers were decided so (--decision DEC): their classes, not a second search
                         c_fit = np.array([ans[i]["class"] for i in gi])
                     else:
-                        c_fit = decide_fitted(bundle, ids["act"][gi], ids["response"][gi],
-                                              ids["response_period"][gi]).cls
-                    J["answer_fitted"][gi] = Jall[row, c_fit]
+                        c_fit = fn(bundle, ids["act"][gi], ids["response"][gi], ids["response_period"][gi]).cls
+                    J["answer_" + dec][gi] = Jall[row, c_fit]
     # alternatives on the identified episodes: the network's class with other gain choices
     for k in ("table_K_mrft", "table_optimum", "K_true", "fitted_optimum", "optimum_when_off_grid"):
         J[k] = nan()

@@ -22,7 +22,17 @@ classes of least expected cost answers its robust table PD with its own gain
 estimate. The class answered has the least belief-weighted
 ``log(ISE / best ISE)`` over those models (exact sampled ISE at the table's rate,
 clipped like ``J``). It needs the cycle's response and costs the candidates x
-beliefs lifted loops (a few ms: off the <= 2 ms table path, so not the default).
+beliefs lifted loops (a few ms: off the <= 2 ms table path).
+
+``decision="blend"`` (the inner loops' default, ``DEFAULT_DECISION``) adds to each
+candidate's fitted cost ``BLEND_GRID_WEIGHT`` times its grid cost (the Bayes decision's
+expected log J): the fitted models know the measured point, the grid's J knows how a
+class's PD fares over the whole lag structure of the belief's classes, which one
+measured point cannot tell apart. On development seeds 11-14, 300 off-grid processes
+each (docs/results/identification.md), it lowered the median J on all eight loop x seed
+sets against Bayes and the p95 on five of them, with 14 unstable answers against Bayes's
+20, where the fitted decision alone raised the attitude p95 (more unstable answers) on
+three of the four seeds. Cost: the fitted decision's (3-5 ms on one thread).
 
 ``decision="stable"`` (the lateral loops' default, ``DEFAULT_DECISION``) chooses a class and
 a factor on its PD by stability first: every class's robust table PD over its own gain
@@ -56,13 +66,14 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.learning.decision import DECISIONS, Decision, decide
 
 __all__ = ["DECISIONS", "IDENT_DECISIONS", "DEFAULT_DECISION", "FITTED_BELIEFS", "FITTED_CANDIDATES",
-           "STABLE_PHASE_DEG", "STABLE_SCALES", "Decision", "StableDecision", "decide_class", "decide_fitted",
-           "decide_stable", "choose_class"]
+           "STABLE_PHASE_DEG", "STABLE_SCALES", "BLEND_GRID_WEIGHT", "Decision", "StableDecision", "decide_class",
+           "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
 
-#: decisions identification answers: the trainer's two, the one over fitted models, stability first
-IDENT_DECISIONS = DECISIONS + ("fitted", "stable")
+#: decisions identification answers: the trainer's two, the one over fitted models, stability first,
+#: the fitted models' cost plus the grid's
+IDENT_DECISIONS = DECISIONS + ("fitted", "stable", "blend")
 #: the decision a loop answers when none is asked for (a loop not named: the bundle's, the trainer's choice)
-DEFAULT_DECISION = {"lateral": "stable"}
+DEFAULT_DECISION = {"lateral": "stable", "altitude": "blend", "attitude": "blend"}
 #: most likely classes whose fitted models the ``fitted`` decision judges on
 FITTED_BELIEFS = 8
 #: classes of least expected cost it chooses among
@@ -71,6 +82,8 @@ FITTED_CANDIDATES = 10
 STABLE_PHASE_DEG = 5.0
 #: factors on ``kp`` and ``kd`` the ``stable`` decision may answer, largest first
 STABLE_SCALES = (1.0, 0.9)
+#: weight of the grid's expected log J beside the fitted models' expected log ISE ratio (``blend``)
+BLEND_GRID_WEIGHT = 1.0
 
 
 @dataclass(frozen=True)
@@ -84,8 +97,9 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
                  response=None, response_period=None) -> Decision:
     """The class decision for the network's activations (m, n) or (n,).
 
-    ``decision``: ``"bayes"``, ``"argmax"``, ``"fitted"`` or ``"stable"`` (both need ``response``
-    and ``response_period``, (m,) each: ``decide_fitted``, ``decide_stable``), or None for the
+    ``decision``: ``"bayes"``, ``"argmax"``, ``"fitted"``, ``"stable"`` or ``"blend"`` (the last three
+    need ``response`` and ``response_period``, (m,) each: ``decide_fitted``, ``decide_stable``,
+    ``decide_blend``), or None for the
     loop's ``DEFAULT_DECISION``, else the bundle's (``ModelBundle.decision``). ``expected_J`` is
     that of the class answered (nan without a cost matrix).
     """
@@ -93,10 +107,10 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
         raise UserError(f"decision must be one of {', '.join(IDENT_DECISIONS)}, got {decision!r}")
     if decision is None and bundle.cost is not None:
         decision = DEFAULT_DECISION.get(bundle.loop)
-    if decision in ("fitted", "stable"):
+    if decision in ("fitted", "stable", "blend"):
         if response is None or response_period is None:
             raise UserError(f"the {decision} decision needs the cycle's response and its period")
-        fn = decide_fitted if decision == "fitted" else decide_stable
+        fn = {"fitted": decide_fitted, "stable": decide_stable, "blend": decide_blend}[decision]
         return fn(bundle, activations, response, response_period)
     if decision == "bayes" and bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the Bayes decision "
@@ -122,7 +136,8 @@ def _belief(bundle: ModelBundle, activations, response, response_period, name: s
 
 
 def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
-                  beliefs: int = FITTED_BELIEFS, candidates: int = FITTED_CANDIDATES) -> Decision:
+                  beliefs: int = FITTED_BELIEFS, candidates: int = FITTED_CANDIDATES,
+                  grid_weight: float = 0.0) -> Decision:
     """The class of least expected log ISE ratio over the belief's fitted models (module docstring).
 
     Parameters
@@ -133,12 +148,14 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         Each cycle's fundamental response and its period, s (``CycleFeatures``).
     beliefs, candidates : int
         Most likely classes judged on, classes of least expected cost chosen among.
+    grid_weight : float
+        Weight of the grid's expected cost (Bayes's) added to each candidate's (``decide_blend``).
 
     Returns
     -------
     Decision
         ``decision`` ``"fitted"``; ``expected_J`` the exp of the chosen class's expected log
-        ratio to the best candidate on each fitted model.
+        ratio to the best candidate on each fitted model (plus ``grid_weight`` times its grid cost).
     """
     from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
     from uavsim.learning.decision import COST_CLIP
@@ -171,10 +188,28 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
             score[m] = ec[m, cls[m]]
             continue
         w = p[m, bel][seen] / p[m, bel][seen].sum()
-        cost = np.log(np.clip(Q[:, seen] / best[seen], *COST_CLIP)) @ w
+        cost = np.log(np.clip(Q[:, seen] / best[seen], *COST_CLIP)) @ w + grid_weight * ec[m, cand]
         k = int(np.argmin(cost))
         cls[m], score[m] = cand[k], cost[k]
     return Decision(cls=cls.astype(np.int64), expected_J=np.exp(score), p=p, decision="fitted")
+
+
+def decide_blend(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
+                 grid_weight: float = BLEND_GRID_WEIGHT) -> Decision:
+    """The class of least fitted-model cost plus ``grid_weight`` times its grid cost (module docstring).
+
+    ``decide_fitted`` with the grid's expected log J (the Bayes decision's cost) added to each
+    candidate's expected log ISE ratio over the belief's fitted models. Parameters as
+    ``decide_fitted``'s; ``decision`` ``"blend"``, ``expected_J`` the chosen class's under the
+    grid's J (as Bayes's).
+    """
+    from dataclasses import replace
+
+    from uavsim.learning.decision import expected_cost
+
+    d = decide_fitted(bundle, activations, response, response_period, grid_weight=grid_weight)
+    ec = expected_cost(d.p, bundle.cost)
+    return replace(d, expected_J=np.exp(ec[np.arange(d.cls.size), d.cls]), decision="blend")
 
 
 def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,

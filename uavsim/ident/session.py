@@ -5,8 +5,10 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
 1. the last steady cycle, exactly as the training sets were built, checked
    (``uavsim.ident.cycle.extract_cycle``);
 2. the class: the answer of least expected J under the network's softmax, over the
-   bundle's cost matrix (``uavsim.ident.select.decide_class``; ``decision="argmax"``: the most likely
-   class, also what a bundle exported without the matrix answers);
+   bundle's cost matrix and (inner loops' default, ``decision="blend"``) over the belief's
+   models fitted to the measured point (``uavsim.ident.select.decide_class``;
+   ``decision="argmax"``: the most likely class, also what a bundle exported without the
+   matrix answers);
 3. the gains: the table's robust PD of the class over the estimated gain
    ``K_hat`` (``uavsim.ident.gains``), the real-time answer. With ``optimum``
    the fitted model's own optimum at the control rate is computed too (~10-20 ms,
@@ -74,9 +76,10 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Lateral only: the flight's attitude loop when known better than the bundle's
         (``T_prop``, ``T1``, ``tau_in``, ``att_kp``, ``att_kd``, ``att_filter_hz``); it changes the
         fitted model and its optimum, not the table's answer.
-    decision : ``"bayes"``, ``"argmax"``, ``"fitted"``, ``"stable"`` or None
+    decision : ``"bayes"``, ``"argmax"``, ``"fitted"``, ``"stable"``, ``"blend"`` or None
         The class decision (``uavsim.ident.select``); None: the loop's default
-        (``DEFAULT_DECISION``: ``stable`` on lateral loops), else the bundle's (``ModelBundle.decision``).
+        (``DEFAULT_DECISION``: ``stable`` on lateral loops, ``blend`` on the inner ones) where the
+        bundle carries its cost matrix, else the bundle's (``ModelBundle.decision``).
     guard : bool
         Back the table's PD off where the answer's fitted model with a few degrees more lag
         needs it (``uavsim.ident.guard``; the answer's ``guard``: ``scale``, ``phase_deg``,
