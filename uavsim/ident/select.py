@@ -171,15 +171,19 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         both = np.union1d(bel, cand)
         model = fitted_model(bundle, both, np.full(both.size, resp[m]), np.full(both.size, per[m]))
         g = table_gains(bundle, cand, model["K"][np.searchsorted(both, cand)])
-        ci, bj = np.repeat(np.arange(cand.size), bel.size), np.tile(np.searchsorted(both, bel), cand.size)
-        pk = {k: (v[bj] if isinstance(v, np.ndarray) else v) for k, v in model_loop_params(bundle, model).items()}
-        ok = (np.isfinite(pk["K"]) & (pk["K"] > 0) & np.isfinite(g["kp"][ci]) & (g["kp"][ci] > 0))
+        ci, bj = np.repeat(np.arange(cand.size), bel.size), np.tile(np.arange(bel.size), cand.size)
+        # the belief's models lifted once, then repeated for every candidate's PD
+        pk = {k: (v[np.searchsorted(both, bel)] if isinstance(v, np.ndarray) else v)
+              for k, v in model_loop_params(bundle, model).items()}
+        ok_m = np.isfinite(pk["K"]) & (pk["K"] > 0)
+        ok = ok_m[bj] & np.isfinite(g["kp"][ci]) & (g["kp"][ci] > 0)
         Q = np.full(ci.size, np.inf)
         if ok.any():
             with np.errstate(all="ignore"):
                 proc = lift(bundle.loop, bundle.rate_hz,
-                            **{k: (v[ok] if isinstance(v, np.ndarray) else v) for k, v in pk.items()})
-                Q[ok] = sampled_ise(proc, g["kp"][ci][ok], g["kd"][ci][ok],
+                            **{k: (v[ok_m] if isinstance(v, np.ndarray) else v) for k, v in pk.items()})
+                row = np.cumsum(ok_m) - 1  # a model's row among the lifted ones
+                Q[ok] = sampled_ise(proc.take(row[bj[ok]]), g["kp"][ci][ok], g["kd"][ci][ok],
                                     2.0 * np.pi * g["derivative_filter_hz"][ci][ok])
         Q = np.where(np.isfinite(Q) & (Q > 0), Q, np.inf).reshape(cand.size, bel.size)
         best = Q.min(axis=0)
