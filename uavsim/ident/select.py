@@ -21,18 +21,18 @@ as many plausible off-grid processes, and each of the ``FITTED_CANDIDATES``
 classes of least expected cost answers its robust table PD with its own gain
 estimate. The class answered has the least belief-weighted
 ``log(ISE / best ISE)`` over those models (exact sampled ISE at the table's rate,
-clipped like ``J``). It needs the cycle's response and costs the candidates x
-beliefs lifted loops (a few ms: off the <= 2 ms table path).
+clipped like ``J``). It needs the cycle's response and costs the beliefs' lifted
+loops and candidates x beliefs closed ones (a few ms: off the <= 2 ms table path).
 
 ``decision="blend"`` (the inner loops' default, ``DEFAULT_DECISION``) adds to each
 candidate's fitted cost ``BLEND_GRID_WEIGHT`` times its grid cost (the Bayes decision's
 expected log J): the fitted models know the measured point, the grid's J knows how a
 class's PD fares over the whole lag structure of the belief's classes, which one
-measured point cannot tell apart. On development seeds 11-14, 300 off-grid processes
-each (docs/results/identification.md), it lowered the median J on all eight loop x seed
-sets against Bayes and the p95 on five of them, with 14 unstable answers against Bayes's
-20, where the fitted decision alone raised the attitude p95 (more unstable answers) on
-three of the four seeds. Cost: the fitted decision's (3-5 ms on one thread).
+measured point cannot tell apart. On development seeds 11-16, 300 off-grid processes
+each (docs/results/identification.md), it lowered the median J on all twelve loop x seed
+sets against Bayes and the p95 on seven of them, with 23 unstable answers against
+Bayes's 38 (the fitted decision alone: 39). Cost: the fitted decision's (about 3 ms on
+one thread).
 
 ``decision="stable"`` (the lateral loops' default, ``DEFAULT_DECISION``) chooses a class and
 a factor on its PD by stability first: every class's robust table PD over its own gain
