@@ -99,6 +99,10 @@ class CycleFeatures:
         command excites the loop at ``k w`` too, so the response at several frequencies comes
         for free: it tells delay (phase growing with frequency) from lag (phase levelling off),
         which the cycle's shape alone barely does (``uavsim.ident``).
+    response_spread : (float, float)
+        How much the response cycles disagree: the standard deviations over them of each
+        cycle's own ``log |Y1 / (h U1)|`` and of its phase about ``response``'s (rad). Noise
+        that corrupts the measured point shows here (``uavsim.ident.select.decide_stable``).
     """
 
     x: np.ndarray
@@ -112,6 +116,7 @@ class CycleFeatures:
     response_cycles: int = 0
     harmonics_y: np.ndarray | None = None
     harmonics_u: np.ndarray | None = None
+    response_spread: tuple[float, float] = (0.0, 0.0)
 
 
 def held_response(G, omega, rate_hz: float) -> np.ndarray:
@@ -288,10 +293,15 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     re = edges[-1 - m:]
     yh, uh = cycle_harmonics(y, re)[0], cycle_harmonics(s, re)[0]
     hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
+    response = complex(yh / (h * uh))
+    each = np.array([cycle_harmonics(y, re[k : k + 2])[0] / (h * cycle_harmonics(s, re[k : k + 2])[0])
+                     for k in range(m)])
+    with np.errstate(all="ignore"):
+        spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
                          start=int(round(start * scale)), stop=int(round(stop * scale)),
-                         response=complex(yh / (h * uh)), response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
-                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu)
+                         response=response, response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
+                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu, response_spread=spread)
 
 
 def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, bias: np.ndarray, L: int, *,
