@@ -52,7 +52,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.errors import NoOscillation, UserError
-from uavsim.noise.analysis import cycle_harmonics
 
 INPUT_RATE_HZ = 200.0  # inputs are built from control-rate samples
 #: channel names of an input, in order
@@ -211,6 +210,20 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
     return tuple(out)
 
 
+def _each_cycle_fundamental(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Each cycle's own fundamental (``cycle_harmonics``'s terms before their mean), (len(edges) - 1,) complex."""
+    return np.array([np.exp(-2j * np.pi * np.arange(j - i) / (j - i)) @ x[i:j] / (j - i)
+                     for i, j in zip(edges[:-1], edges[1:], strict=True)])
+
+
+def _mean_of(terms: np.ndarray) -> complex:
+    """Their mean, summed in order as ``cycle_harmonics`` sums them (the same bits)."""
+    acc = complex(0.0)
+    for t in terms:
+        acc += t
+    return acc / len(terms)
+
+
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
              cycles: int = 1) -> CycleFeatures:
     """Network input from one relay test.
@@ -291,11 +304,11 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         m -= 1
         lens = lens[1:]
     re = edges[-1 - m:]
-    yh, uh = cycle_harmonics(y, re)[0], cycle_harmonics(s, re)[0]
+    ey, eu = _each_cycle_fundamental(y, re), _each_cycle_fundamental(s, re)
+    yh, uh = _mean_of(ey), _mean_of(eu)
     hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
     response = complex(yh / (h * uh))
-    each = np.array([cycle_harmonics(y, re[k : k + 2])[0] / (h * cycle_harmonics(s, re[k : k + 2])[0])
-                     for k in range(m)])
+    each = ey / (h * eu)
     with np.errstate(all="ignore"):
         spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
