@@ -52,20 +52,10 @@ def test_stable_decision_avoids_answers_unstable_on_the_measured_process():
     from uavsim.ident.evaluate import _score
     from uavsim.ident.gains import fitted_model, table_gains
     from uavsim.ident.select import decide_class
-    from uavsim.lumped.lateral import lateral_response_sampled
-    from uavsim.tuning.optimal import optimal_gains
 
     sub, b, att = _lateral_bundle(A)
     n = sub.n
-    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
-             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
-             "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
-             "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
-    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
-    w = np.asarray(sub.omega, float)
-    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
-                                                                       if k != "att_rate_hz"})[0][0]
-                  for t in range(n)])
+    truth, q_opt, w, G = _measured(sub, b, att)
     J_bayes, J_stable = [], []
     for t in range(n):
         for c in range(n):
