@@ -52,20 +52,10 @@ def test_stable_decision_avoids_answers_unstable_on_the_measured_process():
     from uavsim.ident.evaluate import _score
     from uavsim.ident.gains import fitted_model, table_gains
     from uavsim.ident.select import decide_class
-    from uavsim.lumped.lateral import lateral_response_sampled
-    from uavsim.tuning.optimal import optimal_gains
 
     sub, b, att = _lateral_bundle(A)
     n = sub.n
-    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
-             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
-             "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
-             "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
-    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
-    w = np.asarray(sub.omega, float)
-    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
-                                                                       if k != "att_rate_hz"})[0][0]
-                  for t in range(n)])
+    truth, q_opt, w, G = _measured(sub, b, att)
     J_bayes, J_stable = [], []
     for t in range(n):
         for c in range(n):
@@ -91,3 +81,75 @@ def test_stable_decision_avoids_answers_unstable_on_the_measured_process():
     assert len(J_bayes) >= 40
     assert np.isfinite(J_stable).mean() >= 0.75
     assert np.median(J_stable) < 1.2
+
+
+def _measured(sub, b, att):
+    """The sub-grid's classes as true processes (K = 1), their optima and exact responses at their MRFT points."""
+    from uavsim.lumped.lateral import lateral_response_sampled
+    from uavsim.tuning.optimal import optimal_gains
+
+    n = sub.n
+    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
+             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
+             "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
+             "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
+    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
+    w = np.asarray(sub.omega, float)
+    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
+                                                                       if k != "att_rate_hz"})[0][0]
+                  for t in range(n)])
+    return truth, q_opt, w, G
+
+
+def test_stable_decision_backs_off_where_the_cycles_disagree():
+    """A network sure of the right class, but the measured gain 0.6 of the truth's (as 10-20 % noise
+    made it in the lateral answers that stayed unstable): the table PD over that gain is unstable on
+    every class of the sub-grid. Told how much the cycles' own gains spread (std of log |G| 0.51, above
+    ``SPREAD_LIMITS``), the stable decision holds every one, near the optimum; consistent cycles (no
+    spread) answer as without it."""
+    from uavsim.ident.evaluate import _score
+    from uavsim.ident.gains import fitted_model, table_gains
+    from uavsim.ident.select import SPREAD_LIMITS, decide_class
+
+    sub, b, att = _lateral_bundle(A)
+    truth, q_opt, w, G = _measured(sub, b, att)
+    low = 0.6
+    assert abs(math.log(low)) > SPREAD_LIMITS[0]
+    J = {}
+    for name, spread in (("none", None), ("consistent", (0.0, 0.0)), ("spread", (abs(math.log(low)), 0.0))):
+        J[name], cls = [], []
+        for t in range(sub.n):
+            b.predictor.cls = t
+            resp, per = low * G[[t]], [2 * np.pi / w[t]]
+            d = decide_class(b, b.predictor.activations(None), response=resp, response_period=per,
+                             response_spread=None if spread is None else np.array([spread]))
+            g = table_gains(b, d.cls, fitted_model(b, d.cls, resp, per)["K"])
+            J[name].append(_score("lateral", 200.0, truth, q_opt, [t], d.scale * g["kp"], d.scale * g["kd"],
+                                  g["derivative_filter_hz"])[0])
+            cls.append((int(d.cls[0]), float(d.scale[0])))
+        J[name] = np.array(J[name])
+        if name == "none":
+            ref = cls
+        elif name == "consistent":
+            assert cls == ref
+    assert np.isfinite(J["none"]).sum() == 0 and np.isfinite(J["consistent"]).sum() == 0
+    assert np.isfinite(J["spread"]).all() and np.median(J["spread"]) < 1.2
+
+
+def test_response_spread_measures_how_the_cycles_disagree():
+    """Identical relay cycles spread nothing; one cycle of the four at 1.5 times the amplitude and
+    another shifted by a tenth of a period spread the log gain and the phase."""
+    from uavsim.data.preprocess import features
+
+    P, k = 40, np.arange(12 * 40)
+    u = np.where((k % P) < P // 2, 1.0, -1.0)
+    phase = 2 * np.pi * k / P
+    y = np.sin(phase - 2.5)
+    f = features(y, u, 200.0, 1.0, 0.0, 992, cycles=2)
+    assert f.response_cycles == 4 and max(f.response_spread) < 1e-9
+    y2 = y.copy()
+    last = np.flatnonzero(np.diff((u > 0).astype(int)) == 1) + 1  # rising edges
+    y2[last[-2] : last[-1]] *= 1.5
+    y2[last[-3] : last[-2]] = np.sin(phase[last[-3] : last[-2]] - 2.5 - 2 * np.pi / 10)
+    f2 = features(y2, u, 200.0, 1.0, 0.0, 992, cycles=2)
+    assert f2.response_spread[0] > 0.1 and f2.response_spread[1] > 0.1

@@ -52,7 +52,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.errors import NoOscillation, UserError
-from uavsim.noise.analysis import cycle_harmonics
 
 INPUT_RATE_HZ = 200.0  # inputs are built from control-rate samples
 #: channel names of an input, in order
@@ -99,6 +98,10 @@ class CycleFeatures:
         command excites the loop at ``k w`` too, so the response at several frequencies comes
         for free: it tells delay (phase growing with frequency) from lag (phase levelling off),
         which the cycle's shape alone barely does (``uavsim.ident``).
+    response_spread : (float, float)
+        How much the response cycles disagree: the standard deviations over them of each
+        cycle's own ``log |Y1 / (h U1)|`` and of its phase about ``response``'s (rad). Noise
+        that corrupts the measured point shows here (``uavsim.ident.select.decide_stable``).
     """
 
     x: np.ndarray
@@ -112,6 +115,7 @@ class CycleFeatures:
     response_cycles: int = 0
     harmonics_y: np.ndarray | None = None
     harmonics_u: np.ndarray | None = None
+    response_spread: tuple[float, float] = (0.0, 0.0)
 
 
 def held_response(G, omega, rate_hz: float) -> np.ndarray:
@@ -206,6 +210,20 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
     return tuple(out)
 
 
+def _each_cycle_fundamental(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Each cycle's own fundamental (``cycle_harmonics``'s terms before their mean), (len(edges) - 1,) complex."""
+    return np.array([np.exp(-2j * np.pi * np.arange(j - i) / (j - i)) @ x[i:j] / (j - i)
+                     for i, j in zip(edges[:-1], edges[1:], strict=True)])
+
+
+def _mean_of(terms: np.ndarray) -> complex:
+    """Their mean, summed in order as ``cycle_harmonics`` sums them (the same bits)."""
+    acc = complex(0.0)
+    for t in terms:
+        acc += t
+    return acc / len(terms)
+
+
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
              cycles: int = 1) -> CycleFeatures:
     """Network input from one relay test.
@@ -286,12 +304,17 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         m -= 1
         lens = lens[1:]
     re = edges[-1 - m:]
-    yh, uh = cycle_harmonics(y, re)[0], cycle_harmonics(s, re)[0]
+    ey, eu = _each_cycle_fundamental(y, re), _each_cycle_fundamental(s, re)
+    yh, uh = _mean_of(ey), _mean_of(eu)
     hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
+    response = complex(yh / (h * uh))
+    each = ey / (h * eu)
+    with np.errstate(all="ignore"):
+        spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
                          start=int(round(start * scale)), stop=int(round(stop * scale)),
-                         response=complex(yh / (h * uh)), response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
-                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu)
+                         response=response, response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
+                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu, response_spread=spread)
 
 
 def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, bias: np.ndarray, L: int, *,

@@ -50,6 +50,16 @@ docs/results/identification.md), which a check at the measured point sees. The
 factor is applied to the answer (``StableDecision.scale``). Cost: about
 ``2 n`` x ``3 FITTED_BELIEFS`` closed loops (tens of ms for 20 classes).
 
+Where the relay's cycles disagree with each other (``response_spread``, the spread of each
+cycle's own response: ``uavsim.data.preprocess.CycleFeatures``) by more than
+``SPREAD_LIMITS``, the measured point itself is suspect: the lateral answers that stayed
+unstable under the stable decision had measured gains 0.1-0.8 of the truth's or phases
+15-55 degrees off (development seeds 11-12), with cycle spreads mostly above those limits,
+which no model fitted to the point with 5 degrees of error foresees. Such a cycle's models
+are moved by its measured phase spread (at least ``STABLE_PHASE_DEG``) and also taken with
+their gain raised by its log-gain spread, and the factor may go down to ``SPREAD_SCALES``'s
+last (about twice the closed loops, on those cycles only).
+
     from uavsim.ident.select import choose_class, decide_class
     d = decide_class(bundle, bundle.predictor.activations(x))       # Decision: cls, expected_J, p, decision
     cls = choose_class(bundle, bundle.predictor.activations(x), decision="argmax")     # (m,) int
@@ -66,8 +76,8 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.learning.decision import DECISIONS, Decision, decide
 
 __all__ = ["DECISIONS", "IDENT_DECISIONS", "DEFAULT_DECISION", "FITTED_BELIEFS", "FITTED_CANDIDATES",
-           "STABLE_PHASE_DEG", "STABLE_SCALES", "BLEND_GRID_WEIGHT", "Decision", "StableDecision", "decide_class",
-           "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
+           "STABLE_PHASE_DEG", "STABLE_SCALES", "SPREAD_LIMITS", "SPREAD_SCALES", "BLEND_GRID_WEIGHT", "Decision",
+           "StableDecision", "decide_class", "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
 
 #: decisions identification answers: the trainer's two, the one over fitted models, stability first,
 #: the fitted models' cost plus the grid's
@@ -84,6 +94,10 @@ STABLE_PHASE_DEG = 5.0
 STABLE_SCALES = (1.0, 0.9)
 #: weight of the grid's expected log J beside the fitted models' expected log ISE ratio (``blend``)
 BLEND_GRID_WEIGHT = 1.0
+#: a cycle whose response cycles spread by more than (std of log |G|, std of phase in deg) is suspect
+SPREAD_LIMITS = (0.4, 15.0)
+#: factors the ``stable`` decision may answer on a suspect cycle, largest first
+SPREAD_SCALES = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5)
 
 
 @dataclass(frozen=True)
@@ -94,12 +108,12 @@ class StableDecision(Decision):
 
 
 def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None,
-                 response=None, response_period=None) -> Decision:
+                 response=None, response_period=None, response_spread=None) -> Decision:
     """The class decision for the network's activations (m, n) or (n,).
 
     ``decision``: ``"bayes"``, ``"argmax"``, ``"fitted"``, ``"stable"`` or ``"blend"`` (the last three
     need ``response`` and ``response_period``, (m,) each: ``decide_fitted``, ``decide_stable``,
-    ``decide_blend``), or None for the
+    ``decide_blend``; ``response_spread`` (m, 2), where known, is the stable decision's), or None for the
     loop's ``DEFAULT_DECISION``, else the bundle's (``ModelBundle.decision``). ``expected_J`` is
     that of the class answered (nan without a cost matrix).
     """
@@ -110,7 +124,9 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
     if decision in ("fitted", "stable", "blend"):
         if response is None or response_period is None:
             raise UserError(f"the {decision} decision needs the cycle's response and its period")
-        fn = {"fitted": decide_fitted, "stable": decide_stable, "blend": decide_blend}[decision]
+        if decision == "stable":
+            return decide_stable(bundle, activations, response, response_period, spread=response_spread)
+        fn = decide_fitted if decision == "fitted" else decide_blend
         return fn(bundle, activations, response, response_period)
     if decision == "bayes" and bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the Bayes decision "
@@ -218,7 +234,8 @@ def decide_blend(bundle: ModelBundle, activations: np.ndarray, response, respons
 
 def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
                   beliefs: int = FITTED_BELIEFS, phase_deg: float = STABLE_PHASE_DEG,
-                  scales=STABLE_SCALES) -> StableDecision:
+                  scales=STABLE_SCALES, spread=None, spread_limits=SPREAD_LIMITS,
+                  spread_scales=SPREAD_SCALES) -> StableDecision:
     """The class and factor whose PD keeps the most of the belief's fitted models stable (module docstring).
 
     Parameters
@@ -233,6 +250,13 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
         Phase lag (deg) each model is also moved by, both ways.
     scales : sequence of float
         Factors on ``kp`` and ``kd`` the answer may take, largest first.
+    spread : (m, 2) or None
+        Each cycle's ``response_spread`` (std of log |G| and of the phase in rad over its
+        response cycles); None: every cycle taken as consistent.
+    spread_limits, spread_scales
+        Above either limit (log gain, deg) a cycle is suspect: its models are moved by its
+        phase spread (at least ``phase_deg``) and also taken at its gain times ``exp`` of its
+        log-gain spread, and the factors are ``spread_scales`` (module docstring).
 
     Returns
     -------
@@ -246,8 +270,8 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
 
     p, resp, per, ec = _belief(bundle, activations, response, response_period, "stable")
     n = p.shape[1]
-    sc = np.asarray(scales, dtype=np.float64)
-    offsets = np.radians([0.0, -phase_deg, phase_deg])
+    sp = np.zeros((p.shape[0], 2)) if spread is None else np.asarray(spread, dtype=np.float64).reshape(p.shape[0], 2)
+    suspect = (sp[:, 0] > spread_limits[0]) | (np.degrees(sp[:, 1]) > spread_limits[1])
     cls = np.argmin(ec, axis=1)
     scale = np.ones(p.shape[0])
     allc = np.arange(n)
@@ -257,10 +281,20 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
         g = table_gains(bundle, allc, model["K"])
         bel = np.argsort(-p[m])[:beliefs]
         w = p[m, bel] / p[m, bel].sum()
-        # the models: each belief's fit, at the measured phase and moved both ways
-        mb, mo = np.repeat(bel, offsets.size), np.tile(offsets, bel.size)
+        # the models: each belief's fit, at the measured phase and moved both ways (a suspect cycle: by
+        # its phase spread, and also at its gain raised by its gain spread)
+        if suspect[m]:
+            ph, gf, sc = max(phase_deg, float(np.degrees(sp[m, 1]))), np.unique(np.exp([0.0, sp[m, 0]])), spread_scales
+        else:
+            ph, gf, sc = phase_deg, np.ones(1), scales
+        sc = np.asarray(sc, dtype=np.float64)
+        offsets = np.radians([0.0, -ph, ph])
+        nv = offsets.size * gf.size
+        mb = np.repeat(bel, nv)
+        mo, mg = np.tile(np.repeat(offsets, gf.size), bel.size), np.tile(gf, offsets.size * bel.size)
         pk = {k: (v[mb] if isinstance(v, np.ndarray) else v) for k, v in model_loop_params(bundle, model).items()}
         pk["tau"] = np.maximum(pk["tau"] + mo * per[m] / (2.0 * np.pi), 0.0)
+        pk["K"] = pk["K"] * mg
         # a fit with a delay beyond the grid's box is no process the grid covers (and its delay line
         # would make the loop's state, so the cost, large)
         ok_m = (np.isfinite(pk["K"]) & (pk["K"] > 0) & np.isfinite(pk["tau"])
@@ -269,7 +303,7 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
         if not (ok_m.any() and g_ok.any()):
             continue  # nothing to close a loop on: the grid's Bayes decision
         im, ic = np.flatnonzero(ok_m), np.flatnonzero(g_ok)
-        wm = np.repeat(w, offsets.size)[im]
+        wm = np.repeat(w, nv)[im]
         with np.errstate(all="ignore"):
             proc = lift(bundle.loop, bundle.rate_hz, **{k: (v[im] if isinstance(v, np.ndarray) else v)
                                                         for k, v in pk.items()})

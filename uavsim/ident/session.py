@@ -98,7 +98,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     act = bundle.predictor.activations(f.x)
     dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
-                       response_period=np.array([f.response_period]))
+                       response_period=np.array([f.response_period]), response_spread=np.array([f.response_spread]))
     c = int(dec.cls[0])
     model = fitted_model(bundle, [c], np.array([f.response]), np.array([f.response_period]), attitude=attitude)
     K_hat = model["K"]
