@@ -152,7 +152,6 @@ def refit_base(
     nthread: int = 0,
     dt: float = 0.001,
     iterations: int = ITERATIONS,
-    actuator: dict[str, float] | None = None,
     log=None,
 ) -> RefitResult:
     """Refit ``model``'s ``K``, ``T_prop``, ``T1``, ``tau`` on every run of ``session`` (pattern search on the gap).
@@ -170,8 +169,6 @@ def refit_base(
         As :func:`uavsim.gap.workflow.run_gap`.
     iterations : int
         Most batches of the search.
-    actuator : dict of str to float, optional
-        The actuator's limits (:func:`uavsim.gap.actuator.fit_actuator`), flown on every point.
     log : callable(str), optional
 
     Returns
@@ -180,7 +177,7 @@ def refit_base(
     """
     t0 = time.perf_counter()
     log = log or (lambda msg: None)
-    ev = GapEvaluator(session, model, {**(actuator or {}), **base_effects(session)}, seed, nthread, dt)
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt)
     R = ev.R
     # the noise scales and the sensor's smoothing, from the start's own seed spread, fixed for the search
     first = ev.sims([("none", 0.0)], seeds=3)

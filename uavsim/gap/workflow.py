@@ -359,7 +359,6 @@ def run_gap(
     smoother_sensor: bool = True,
     name_ratio: float = NAME_RATIO,
     phase_anchor_hz: float | None = None,
-    actuator: dict[str, float] | None = None,
     log=None,
 ) -> GapResult:
     """Run the whole gap workflow on a session.
@@ -396,10 +395,6 @@ def run_gap(
         (``lag``, ``lowpass``) take their phase there out of ``tau`` (down to 0), so that
         the model keeps the measured phase and only the candidate's shape is
         tested; a winner's result carries the model with the shorter ``tau``.
-    actuator : dict of str to float, optional
-        The actuator's limits (``saturation``, ``rate_limit``:
-        :func:`uavsim.gap.actuator.fit_actuator`), flown on every episode under
-        the session's own effects; a candidate of the same name replaces them.
     log : callable(str), optional
         Progress messages.
 
@@ -418,8 +413,7 @@ def run_gap(
     if model is None:
         raise UserError("the session has no [model] and no --model FILE was given: nothing to compare with")
     model_params(session, model)  # loop support and parameter checks
-    ev = GapEvaluator(session, model, {**(actuator or {}), **base_effects(session)}, seed, nthread, dt,
-                      phase_anchor_hz)
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt, phase_anchor_hz)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
