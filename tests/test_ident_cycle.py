@@ -5,7 +5,9 @@ made uneven by stretching every other cycle in time (the last one kept): no two 
 cycles are within the preprocessing's steady tolerance, so the training preprocessing
 (``uavsim.data.preprocess.features``) refuses the run; identification answers it at its own,
 looser tolerance (``uavsim.ident.cycle.IDENT_STEADY_TOL``) with the response of the even run,
-and still refuses cycles further apart than that.
+and still refuses cycles further apart than that. The mechanism is run on these attitude
+cycles with attitude added to ``UNEVEN_CYCLE_LOOPS``; by default only the lateral loops take
+uneven cycles, and an inner loop refuses them.
 """
 
 import numpy as np
@@ -40,7 +42,14 @@ def cycles():
     return g, b, cs, sim
 
 
-def test_uneven_cycles_are_identified_not_refused(cycles):
+@pytest.fixture
+def uneven_loop(monkeypatch):
+    import uavsim.ident.cycle as cy
+
+    monkeypatch.setattr(cy, "UNEVEN_CYCLE_LOOPS", ("attitude",))
+
+
+def test_uneven_cycles_are_identified_not_refused(cycles, uneven_loop):
     from uavsim.data.preprocess import features
     from uavsim.ident.cycle import extract_cycle
 
@@ -59,7 +68,7 @@ def test_uneven_cycles_are_identified_not_refused(cycles):
         assert f.response_cycles > 1  # the spread is measured over the uneven cycles, not one
 
 
-def test_without_the_identification_tolerance_the_uneven_run_is_refused(cycles, monkeypatch):
+def test_without_the_identification_tolerance_the_uneven_run_is_refused(cycles, uneven_loop, monkeypatch):
     import uavsim.ident.cycle as cy
     from uavsim.data.preprocess import STEADY_TOL
 
@@ -70,7 +79,7 @@ def test_without_the_identification_tolerance_the_uneven_run_is_refused(cycles, 
         cy.extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)
 
 
-def test_cycles_further_apart_than_the_identification_tolerance_are_refused(cycles):
+def test_cycles_further_apart_than_the_identification_tolerance_are_refused(cycles, uneven_loop):
     from uavsim.ident.cycle import IDENT_STEADY_TOL, extract_cycle
 
     g, b, cs, sim = cycles
@@ -78,3 +87,13 @@ def test_cycles_further_apart_than_the_identification_tolerance_are_refused(cycl
     yu, uu = _uneven(-sim["e"][0], sim["u"][0], stretch)
     with pytest.raises(NoOscillation, match="no steady state"):
         extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)
+
+
+def test_only_the_lateral_loops_take_uneven_cycles(cycles):
+    from uavsim.ident.cycle import UNEVEN_CYCLE_LOOPS, extract_cycle
+
+    assert UNEVEN_CYCLE_LOOPS == ("lateral",)
+    g, b, cs, sim = cycles
+    yu, uu = _uneven(-sim["e"][0], sim["u"][0], 1.4)
+    with pytest.raises(NoOscillation, match="no steady state"):
+        extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)  # an attitude network

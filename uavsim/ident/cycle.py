@@ -18,10 +18,12 @@ last cycle of a run whose earlier ones are fine); the answer's ``oscillation``
 ``start``/``stop`` say which samples were used. When none of those cuts has two
 cycles of steady length (the preprocessing's 25 %: a noisy run whose relay switches
 unevenly), identification does not refuse outright: the cut whose last two cycles
-agree best is used, up to ``IDENT_STEADY_TOL`` apart. The training sets never take
-such a cycle (their preprocessing keeps its own tolerance); the other checks still
-apply, and the response's per-cycle spread (``CycleFeatures.response_spread``, over
-the uneven cycles) makes the lateral decision back its PD off.
+agree best is used, up to ``IDENT_STEADY_TOL`` apart, for the loops in
+``UNEVEN_CYCLE_LOOPS`` (lateral: its decision backs its PD off on the response's
+per-cycle spread, ``CycleFeatures.response_spread``, measured over those uneven
+cycles; the inner loops' decision has no such back-off, and there such answers were
+unstable more often than the others). The training sets never take such a cycle
+(their preprocessing keeps its own tolerance); the other checks still apply.
 
     from uavsim.ident.cycle import extract_cycle
     f = extract_cycle(y, u, rate_hz=200.0, h=1.0, bias=0.0, bundle=b)
@@ -44,8 +46,8 @@ from uavsim.data.preprocess import (
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 
-__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL", "extract_cycle",
-           "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal"]
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL", "UNEVEN_CYCLE_LOOPS",
+           "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -60,6 +62,8 @@ MAX_CYCLES_DROPPED = 3
 #: two last cycles agree best is used if their lengths differ by at most this fraction of the longer
 #: (development seeds 11-12, lateral: every such answer stable, the spread back-off engaged on most)
 IDENT_STEADY_TOL = 0.75
+#: the loops whose identification takes such uneven cycles (module docstring)
+UNEVEN_CYCLE_LOOPS = ("lateral",)
 _RESAMPLE_MARGIN = 0.02
 
 
@@ -159,6 +163,8 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
             return checked(stop, None)
         except NoOscillation as exc:
             first = first or exc
+    if bundle.loop not in UNEVEN_CYCLE_LOOPS:
+        raise first
     # no cut with a steady pair: the most even pair of cycles, up to IDENT_STEADY_TOL apart (module docstring)
     # (the tolerance passed is the pair's own, so the response cycles are the ones as even as it; the
     # margin covers edges moved by a sample when another control rate is resampled)
