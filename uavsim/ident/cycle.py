@@ -15,7 +15,15 @@ never a guess):
 When the run's last cycles are refused, the steady cycles before them are
 tried, up to ``MAX_CYCLES_DROPPED`` cycles back (a burst of noise can break the
 last cycle of a run whose earlier ones are fine); the answer's ``oscillation``
-``start``/``stop`` say which samples were used.
+``start``/``stop`` say which samples were used. When none of those cuts has two
+cycles of steady length (the preprocessing's 25 %: a noisy run whose relay switches
+unevenly), identification does not refuse outright: the cut whose last two cycles
+agree best is used, up to ``IDENT_STEADY_TOL`` apart, for the loops in
+``UNEVEN_CYCLE_LOOPS`` (lateral: its decision backs its PD off on the response's
+per-cycle spread, ``CycleFeatures.response_spread``, measured over those uneven
+cycles; the inner loops' decision has no such back-off, and there such answers were
+unstable more often than the others). The training sets never take such a cycle
+(their preprocessing keeps its own tolerance); the other checks still apply.
 
     from uavsim.ident.cycle import extract_cycle
     f = extract_cycle(y, u, rate_hz=200.0, h=1.0, bias=0.0, bundle=b)
@@ -28,12 +36,18 @@ import math
 
 import numpy as np
 
-from uavsim.data.preprocess import MIN_CYCLE_SAMPLES, CycleFeatures, features, held_response
+from uavsim.data.preprocess import (
+    MIN_CYCLE_SAMPLES,
+    STEADY_TOL,
+    CycleFeatures,
+    features,
+    held_response,
+)
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 
-__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "extract_cycle", "phase_lead", "phase_refusal",
-           "period_refusal", "saturation_refusal"]
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL", "UNEVEN_CYCLE_LOOPS",
+           "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -44,6 +58,13 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 PHASE_LEAD_MAX_DEG = 70.0
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
+#: identification only: where no cut has two cycles within the preprocessing's steady tolerance, the cut whose
+#: two last cycles agree best is used if their lengths differ by at most this fraction of the longer
+#: (development seeds 11-12, lateral: every such answer stable, the spread back-off engaged on most)
+IDENT_STEADY_TOL = 0.75
+#: the loops whose identification takes such uneven cycles (module docstring)
+UNEVEN_CYCLE_LOOPS = ("lateral",)
+_RESAMPLE_MARGIN = 0.02
 
 
 def saturation_refusal(y: np.ndarray) -> str | None:
@@ -127,16 +148,43 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     typical = float(np.median(d)) * rate_hz / bundle.input_rate_hz if d.size else 0.0
     earliest = len(y) - (MAX_CYCLES_DROPPED + 0.5) * typical
     cuts = [len(y)] + [int(e) + 1 for e in edges[::-1][: max(len(edges) - bundle.cycles - 2, 0)] if e >= earliest]
+
+    def checked(stop: int, tol: float | None) -> CycleFeatures:
+        f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol)
+        why = (saturation_refusal(y[f.start : f.stop])
+               or period_refusal(f.period, bundle.period_bounds())
+               or phase_refusal(f.response, f.response_period, nb, bundle.input_rate_hz))
+        if why:
+            raise NoOscillation(why)
+        return f
+
     for stop in cuts:
         try:
-            f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles)
-            why = (saturation_refusal(y[f.start : f.stop])
-                   or period_refusal(f.period, bundle.period_bounds())
-                   or phase_refusal(f.response, f.response_period, nb, bundle.input_rate_hz))
-            if why:
-                raise NoOscillation(why)
+            return checked(stop, None)
         except NoOscillation as exc:
             first = first or exc
+    if bundle.loop not in UNEVEN_CYCLE_LOOPS:
+        raise first
+    # no cut with a steady pair: the most even pair of cycles, up to IDENT_STEADY_TOL apart (module docstring)
+    # (the tolerance passed is the pair's own, so the response cycles are the ones as even as it; the
+    # margin covers edges moved by a sample when another control rate is resampled)
+    for stop in sorted(cuts, key=lambda s: (_pair_mismatch(edges, s), -s)):
+        mismatch = _pair_mismatch(edges, stop)
+        if mismatch > IDENT_STEADY_TOL:
+            break
+        if mismatch <= STEADY_TOL:
+            continue  # tried above
+        try:
+            return checked(stop, mismatch + _RESAMPLE_MARGIN)
+        except NoOscillation:
             continue
-        return f
     raise first
+
+
+def _pair_mismatch(edges: np.ndarray, stop: int) -> float:
+    """The relative length difference of the two last full cycles (between ``edges``) before sample ``stop``."""
+    e = edges[edges < stop]
+    if e.size < 3:
+        return math.inf
+    last, before = float(e[-1] - e[-2]), float(e[-2] - e[-3])
+    return abs(last - before) / max(last, before)

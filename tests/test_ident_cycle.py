@@ -1,0 +1,99 @@
+"""The relay cycle identification extracts: a run with no pair of equal-length cycles.
+
+Exact 200 Hz relay cycles of attitude grid classes (``test_identify._attitude_cycles``) are
+made uneven by stretching every other cycle in time (the last one kept): no two adjacent
+cycles are within the preprocessing's steady tolerance, so the training preprocessing
+(``uavsim.data.preprocess.features``) refuses the run; identification answers it at its own,
+looser tolerance (``uavsim.ident.cycle.IDENT_STEADY_TOL``) with the response of the even run,
+and still refuses cycles further apart than that. The mechanism is run on these attitude
+cycles with attitude added to ``UNEVEN_CYCLE_LOOPS``; by default only the lateral loops take
+uneven cycles, and an inner loop refuses them.
+"""
+
+import numpy as np
+import pytest
+from test_identify import _attitude_cycles
+
+from uavsim.errors import NoOscillation
+
+
+def _uneven(y: np.ndarray, u: np.ndarray, stretch: float) -> tuple[np.ndarray, np.ndarray]:
+    """The run with every other cycle (counted back from the last, which is kept) ``stretch`` times longer."""
+    pos = u > 0
+    edges = np.flatnonzero(pos[1:] & ~pos[:-1]) + 1
+    ys, us = [y[: edges[0]]], [u[: edges[0]]]
+    for k, (i, j) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        if (len(edges) - 2 - k) % 2 == 1:
+            m = int(round(stretch * (j - i)))
+            t = np.arange(m) / stretch
+            ys.append(np.interp(i + t, np.arange(i, j + 1), y[i : j + 1]))
+            us.append(u[i + np.floor(t).astype(int)])
+        else:
+            ys.append(y[i:j])
+            us.append(u[i:j])
+    ys.append(y[edges[-1] :])
+    us.append(u[edges[-1] :])
+    return np.concatenate(ys), np.concatenate(us)
+
+
+@pytest.fixture(scope="module")
+def cycles():
+    g, b, cs, truth, sim, q_opt = _attitude_cycles(4)
+    return g, b, cs, sim
+
+
+@pytest.fixture
+def uneven_loop(monkeypatch):
+    import uavsim.ident.cycle as cy
+
+    monkeypatch.setattr(cy, "UNEVEN_CYCLE_LOOPS", ("attitude",))
+
+
+def test_uneven_cycles_are_identified_not_refused(cycles, uneven_loop):
+    from uavsim.data.preprocess import features
+    from uavsim.ident.cycle import extract_cycle
+
+    g, b, cs, sim = cycles
+    kw = {"rate_hz": 200.0, "h": 1.0, "bias": 0.0, "bundle": b, "beta": g.beta}
+    for j in range(cs.size):
+        y, u = -sim["e"][j], sim["u"][j]
+        even = extract_cycle(y, u, **kw)
+        yu, uu = _uneven(y, u, 1.4)  # adjacent cycles 29 % apart: between the two tolerances
+        with pytest.raises(NoOscillation, match="no steady state"):
+            features(yu, uu, 200.0, 1.0, 0.0, b.input_length)  # the training sets' preprocessing
+        f = extract_cycle(yu, uu, **kw)
+        assert f.period == pytest.approx(even.period, rel=0.02)
+        assert abs(f.response) == pytest.approx(abs(even.response), rel=0.03)
+        assert abs(np.degrees(np.angle(f.response / even.response))) < 3.0
+        assert f.response_cycles > 1  # the spread is measured over the uneven cycles, not one
+
+
+def test_without_the_identification_tolerance_the_uneven_run_is_refused(cycles, uneven_loop, monkeypatch):
+    import uavsim.ident.cycle as cy
+    from uavsim.data.preprocess import STEADY_TOL
+
+    g, b, cs, sim = cycles
+    yu, uu = _uneven(-sim["e"][0], sim["u"][0], 1.4)
+    monkeypatch.setattr(cy, "IDENT_STEADY_TOL", STEADY_TOL)
+    with pytest.raises(NoOscillation, match="no steady state"):
+        cy.extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)
+
+
+def test_cycles_further_apart_than_the_identification_tolerance_are_refused(cycles, uneven_loop):
+    from uavsim.ident.cycle import IDENT_STEADY_TOL, extract_cycle
+
+    g, b, cs, sim = cycles
+    stretch = 1.0 / (1.0 - IDENT_STEADY_TOL) + 0.1
+    yu, uu = _uneven(-sim["e"][0], sim["u"][0], stretch)
+    with pytest.raises(NoOscillation, match="no steady state"):
+        extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)
+
+
+def test_only_the_lateral_loops_take_uneven_cycles(cycles):
+    from uavsim.ident.cycle import UNEVEN_CYCLE_LOOPS, extract_cycle
+
+    assert UNEVEN_CYCLE_LOOPS == ("lateral",)
+    g, b, cs, sim = cycles
+    yu, uu = _uneven(-sim["e"][0], sim["u"][0], 1.4)
+    with pytest.raises(NoOscillation, match="no steady state"):
+        extract_cycle(yu, uu, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta)  # an attitude network
