@@ -98,8 +98,10 @@ def test_killed_process_resumes(small, tmp_path):
     """SIGKILL a CLI run after its first chunk; running again gives the uninterrupted file."""
     out, _ = small
     target = tmp_path / "killed.h5"
-    code = ("import sys; from uavsim.data.generate import generate; from uavsim.data.recipe import load_recipe;"
-            f"generate(load_recipe({str(SMALL)!r}), {str(target)!r}, progress=False, workers=1)")
+    # the child holds after its first saved chunk, so the kill lands mid-run however loaded the machine is
+    code = ("import time; from uavsim.data.generate import generate; from uavsim.data.recipe import load_recipe;"
+            f"generate(load_recipe({str(SMALL)!r}), {str(target)!r}, progress=False, workers=1,"
+            " on_chunk=lambda i: time.sleep(120) if i == 0 else None)")
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT)
     resume = tmp_path / "killed.h5.resume"
     t0 = time.time()
