@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.errors import NoOscillation, UserError
+from uavsim.noise.analysis import cycle_harmonic_terms, mean_over_cycles
 
 INPUT_RATE_HZ = 200.0  # inputs are built from control-rate samples
 #: channel names of an input, in order
@@ -211,20 +212,6 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
     return tuple(out)
 
 
-def _each_cycle_fundamental(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Each cycle's own fundamental (``cycle_harmonics``'s terms before their mean), (len(edges) - 1,) complex."""
-    return np.array([np.exp(-2j * np.pi * np.arange(j - i) / (j - i)) @ x[i:j] / (j - i)
-                     for i, j in zip(edges[:-1], edges[1:], strict=True)])
-
-
-def _mean_of(terms: np.ndarray) -> complex:
-    """Their mean, summed in order as ``cycle_harmonics`` sums them (the same bits)."""
-    acc = complex(0.0)
-    for t in terms:
-        acc += t
-    return acc / len(terms)
-
-
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
              cycles: int = 1, steady_tol: float | None = None) -> CycleFeatures:
     """Network input from one relay test.
@@ -310,11 +297,11 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         m -= 1
         lens = lens[1:]
     re = edges[-1 - m:]
-    ey, eu = _each_cycle_fundamental(y, re), _each_cycle_fundamental(s, re)
-    yh, uh = _mean_of(ey), _mean_of(eu)
+    ty, tu = cycle_harmonic_terms(y, re), cycle_harmonic_terms(s, re)  # each cycle's own fundamental
+    yh, uh = mean_over_cycles(ty)[0], mean_over_cycles(tu)[0]
     hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
     response = complex(yh / (h * uh))
-    each = ey / (h * eu)
+    each = ty[:, 0] / (h * tu[:, 0])
     with np.errstate(all="ignore"):
         spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,

@@ -58,15 +58,39 @@ def switch_indices(u: np.ndarray) -> np.ndarray:
     return np.flatnonzero(s[1:] != s[:-1]) + 1
 
 
+def cycle_harmonic_terms(x: np.ndarray, edges: np.ndarray, orders: tuple[int, ...] = (1,)) -> np.ndarray:
+    """Each relay cycle's own harmonics, before ``cycle_harmonics`` averages them.
+
+    For the cycle between ``edges[i]`` and ``edges[i + 1]`` (``N`` samples) the
+    ``k``-th harmonic is ``sum_n x[n] exp(-2 pi j k n / N) / N``.
+
+    Returns
+    -------
+    (len(edges) - 1, len(orders)) complex
+    """
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty((len(edges) - 1, len(orders)), dtype=complex)
+    for c, (i, j) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        n = j - i
+        out[c] = np.exp(-2j * np.pi * np.outer(orders, np.arange(n)) / n) @ x[i:j] / n
+    return out
+
+
+def mean_over_cycles(terms: np.ndarray) -> np.ndarray:
+    """The mean of per-cycle ``terms`` (c, k), summed cycle by cycle in order (``cycle_harmonics``'s bits)."""
+    acc = np.zeros(terms.shape[1], dtype=complex)
+    for t in terms:
+        acc += t
+    return acc / len(terms)
+
+
 def cycle_harmonics(x: np.ndarray, edges: np.ndarray, orders: tuple[int, ...] = (1,)) -> np.ndarray:
     """Harmonics of a signal over whole relay cycles, each cycle on its own period.
 
-    For the cycle between ``edges[i]`` and ``edges[i + 1]`` (``N`` samples) the
-    ``k``-th harmonic is ``sum_n x[n] exp(-2 pi j k n / N) / N``; the result is
-    the mean over cycles. Taken on the samples themselves, the ratio of two
-    signals' harmonics is exactly the sampled system's frequency response at
-    the cycle's frequency for a periodic cycle (a relay's held command and the
-    output sampled with it).
+    The mean over cycles of ``cycle_harmonic_terms``. Taken on the samples themselves,
+    the ratio of two signals' harmonics is exactly the sampled system's frequency
+    response at the cycle's frequency for a periodic cycle (a relay's held command and
+    the output sampled with it).
 
     Parameters
     ----------
@@ -78,12 +102,7 @@ def cycle_harmonics(x: np.ndarray, edges: np.ndarray, orders: tuple[int, ...] = 
     -------
     (len(orders),) complex
     """
-    x = np.asarray(x, dtype=np.float64)
-    acc = np.zeros(len(orders), dtype=complex)
-    for i, j in zip(edges[:-1], edges[1:], strict=True):
-        n = j - i
-        acc += np.exp(-2j * np.pi * np.outer(orders, np.arange(n)) / n) @ x[i:j] / n
-    return acc / (len(edges) - 1)
+    return mean_over_cycles(cycle_harmonic_terms(x, edges, orders))
 
 
 def _settle_index(t: np.ndarray, settle: float | None) -> int:
