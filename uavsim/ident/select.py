@@ -47,7 +47,7 @@ about half the class pairs unstable on each other) and lateral cycles under 10-2
 noise are often classified far from the process: the Bayes answer is then unstable on
 its own fitted model in more than half the unstable cases (development seeds 11-12,
 docs/results/identification.md), which a check at the measured point sees. The
-factor is applied to the answer (``StableDecision.scale``). Cost: about
+factor is applied to the answer (``Decision.scale``). Cost: about
 ``2 n`` x ``3 FITTED_BELIEFS`` closed loops (tens of ms for 20 classes).
 
 Where the relay's cycles disagree with each other (``response_spread``, the spread of each
@@ -67,8 +67,6 @@ last (about twice the closed loops, on those cycles only).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from uavsim.errors import UserError
@@ -77,7 +75,7 @@ from uavsim.learning.decision import DECISIONS, Decision, decide
 
 __all__ = ["DECISIONS", "IDENT_DECISIONS", "DEFAULT_DECISION", "FITTED_BELIEFS", "FITTED_CANDIDATES",
            "STABLE_PHASE_DEG", "STABLE_SCALES", "SPREAD_LIMITS", "SPREAD_SCALES", "BLEND_GRID_WEIGHT", "Decision",
-           "StableDecision", "decide_class", "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
+           "decide_class", "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
 
 #: decisions identification answers: the trainer's two, the one over fitted models, stability first,
 #: the fitted models' cost plus the grid's
@@ -98,13 +96,6 @@ BLEND_GRID_WEIGHT = 1.0
 SPREAD_LIMITS = (0.4, 15.0)
 #: factors the ``stable`` decision may answer on a suspect cycle, largest first
 SPREAD_SCALES = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5)
-
-
-@dataclass(frozen=True)
-class StableDecision(Decision):
-    """A ``stable`` decision: ``scale`` (m,) is the factor on the class's table ``kp`` and ``kd``."""
-
-    scale: np.ndarray = field(default_factory=lambda: np.ones(0))
 
 
 def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None,
@@ -235,15 +226,13 @@ def decide_blend(bundle: ModelBundle, activations: np.ndarray, response, respons
 def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
                   beliefs: int = FITTED_BELIEFS, phase_deg: float = STABLE_PHASE_DEG,
                   scales=STABLE_SCALES, spread=None, spread_limits=SPREAD_LIMITS,
-                  spread_scales=SPREAD_SCALES) -> StableDecision:
+                  spread_scales=SPREAD_SCALES) -> Decision:
     """The class and factor whose PD keeps the most of the belief's fitted models stable (module docstring).
 
     Parameters
     ----------
-    activations : (m, n) or (n,)
-        The network's activations.
-    response, response_period : (m,) complex, (m,) float
-        Each cycle's fundamental response and its period, s (``CycleFeatures``).
+    activations, response, response_period
+        As ``decide_fitted``'s.
     beliefs : int
         Most likely classes whose fitted models the candidates are closed on.
     phase_deg : float
@@ -260,7 +249,7 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
 
     Returns
     -------
-    StableDecision
+    Decision
         ``decision`` ``"stable"``; ``expected_J`` the chosen class's under the grid's J (as
         Bayes's); ``scale`` the factor answered.
     """
@@ -320,7 +309,7 @@ def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, respon
             if best[0] >= wm.sum() - 1e-9:  # every model held: no smaller factor can do better
                 break
         cls[m], scale[m] = best[1], best[2]
-    return StableDecision(cls=cls.astype(np.int64), expected_J=np.exp(ec[np.arange(p.shape[0]), cls]), p=p,
+    return Decision(cls=cls.astype(np.int64), expected_J=np.exp(ec[np.arange(p.shape[0]), cls]), p=p,
                           decision="stable", scale=scale)
 
 

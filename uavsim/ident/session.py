@@ -43,7 +43,7 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.select import StableDecision, decide_class
+from uavsim.ident.select import decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -105,8 +105,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if not (np.isfinite(K_hat[0]) and K_hat[0] > 0):
         raise UserError(f"cannot recover the gain: fundamental response {f.response} over {f.response_cycles} cycles")
     g_tab = table_gains(bundle, [c], K_hat)
-    dec_scale = float(dec.scale[0]) if isinstance(dec, StableDecision) else 1.0
-    if dec_scale != 1.0:  # the stable decision's factor on the class's PD
+    dec_scale = 1.0 if dec.scale is None else float(dec.scale[0])
+    if dec_scale != 1.0:  # the decision's factor on the class's PD (the stable decision's)
         g_tab = {**g_tab, "kp": dec_scale * g_tab["kp"], "kd": dec_scale * g_tab["kd"]}
     tau, tau_c = float(model["tau"][0]), float(model["tau_class"][0])
     off = abs(tau - tau_c) > max(OFF_GRID_TAU[0], OFF_GRID_TAU[1] * tau_c)

@@ -68,13 +68,17 @@ class Decision:
     p : (m, n) float64
         The network's softmax.
     decision : str
-        The decision made (``bayes`` or ``argmax``).
+        The decision made (``bayes`` or ``argmax``; identification's: ``uavsim.ident.select``).
+    scale : (m,) float64 or None
+        Factor on the answered class's table ``kp`` and ``kd`` where the decision chose one
+        (identification's ``stable``); None: 1.
     """
 
     cls: np.ndarray
     expected_J: np.ndarray
     p: np.ndarray
     decision: str
+    scale: np.ndarray | None = None
 
 
 def softmax(activations: np.ndarray, temperature: float = 1.0) -> np.ndarray:
