@@ -155,3 +155,15 @@ def three_model(tmp_path_factory):
     rep = train(load_train_recipe(rp), quiet=True)
     assert rep["val"]["top1"] == 1.0
     return tmp, Path(rep["out"]), grid
+
+
+class ClassNetwork:
+    """A stand-in network whose activations put ``logit`` on class ``cls`` and 0 elsewhere (tests only)."""
+
+    def __init__(self, n: int, logit: float = 1.0):
+        self.n_classes, self.input_length, self.cls, self.logit = n, 0, 0, logit
+
+    def activations(self, x):
+        a = np.zeros((1, self.n_classes), np.float32)
+        a[0, self.cls] = self.logit
+        return a

@@ -11,20 +11,9 @@ import math
 from pathlib import Path
 
 import numpy as np
+from _learning_fixtures import ClassNetwork
 
 A = 11  # an attitude class whose lateral sub-grid has many class pairs unstable on each other
-
-
-class _SureOf:
-    """A stand-in network sure of a given class (tests only)."""
-
-    def __init__(self, n: int):
-        self.n_classes, self.input_length, self.cls = n, 0, 0
-
-    def activations(self, x):
-        a = np.zeros((1, self.n_classes), np.float32)
-        a[0, self.cls] = 8.0
-        return a
 
 
 def _lateral_bundle(a: int):
@@ -40,7 +29,7 @@ def _lateral_bundle(a: int):
     classes.update({k: v for k, v in tab.items() if k != "J"})
     att = dict(load_table("lateral").lateral(a).attitude)
     b = ModelBundle(dir=Path("grid"), loop="lateral", rate_hz=200.0, rule=sub.rule, input_length=0, cycles=1,
-                    input_rate_hz=200.0, classes=classes, predictor=_SureOf(sub.n), meta={}, attitude=att,
+                    input_rate_hz=200.0, classes=classes, predictor=ClassNetwork(sub.n, logit=8.0), meta={}, attitude=att,
                     att_class=a, cost=tab["J"], temperature=1.0, decision="bayes")
     return sub, b, att
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _learning_fixtures import CLASSES, three_model  # noqa: F401 (fixture)
+from _learning_fixtures import CLASSES, ClassNetwork, three_model  # noqa: F401 (fixture)
 
 from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import read_session, write_session
@@ -221,18 +221,6 @@ def test_cli_json_and_errors(setup, tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1
 
 
-class _KnownClass:
-    """A stand-in network that answers a given class (tests only): the gain path without the classifier."""
-
-    def __init__(self, n: int):
-        self.n_classes, self.input_length, self.cls = n, 0, 0
-
-    def activations(self, x):
-        a = np.zeros((1, self.n_classes), np.float32)
-        a[0, self.cls] = 1.0
-        return a
-
-
 def _grid_bundle(family: str, L: int):
     from uavsim.data.generate import class_table_gains
     from uavsim.ident.bundle import ModelBundle
@@ -242,7 +230,7 @@ def _grid_bundle(family: str, L: int):
     classes = {k: np.asarray(g.params[k], float) for k in ("T_prop", "T1", "tau")}
     classes["period"] = np.asarray(g.period, float)
     classes.update({k: v for k, v in class_table_gains(family, 200.0, None).items() if k != "J"})
-    net = _KnownClass(g.n)
+    net = ClassNetwork(g.n)
     net.input_length = L
     return g, ModelBundle(dir=Path("grid"), loop=family, rate_hz=200.0, rule=g.rule, input_length=L, cycles=1,
                           input_rate_hz=200.0, classes=classes, predictor=net, meta={})
