@@ -71,7 +71,7 @@ from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import guard_scale
-from uavsim.ident.select import decide_blend, decide_fitted
+from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
 from uavsim.lumped.params import RANGES, LumpedParams
@@ -272,7 +272,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
-        res["act"][i] = bundle.predictor.activations(f.x)[0]
+        res["act"][i] = cycle_activations(bundle, f)[0]
         p = decide(res["act"][i], decision="argmax", temperature=bundle.temperature).p[0]
         top = np.argsort(-p)[:TOP_RECORDED]
         res["top"][i] = [[int(c), float(p[c])] for c in top]

@@ -43,7 +43,7 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.select import decide_class
+from uavsim.ident.select import cycle_activations, decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -96,7 +96,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     """
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
-    act = bundle.predictor.activations(f.x)
+    act = cycle_activations(bundle, f)
     dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
                        response_period=np.array([f.response_period]), response_spread=np.array([f.response_spread]))
     c = int(dec.cls[0])
