@@ -130,3 +130,20 @@ def _shifted(x: np.ndarray, k: int) -> np.ndarray:
     n = int(np.count_nonzero(x[1]))
     x[0, -n:] = np.roll(x[0, -n:], k)
     return x
+
+
+def test_only_the_response_cycles_that_fit_the_input_are_looked_at():
+    """Steady cycles of 44, 44, 40 and 40 samples with an input of 42: the looks and the mean are the two last."""
+    shape = lambda n: np.sin(2 * np.pi * np.arange(n) / n)  # noqa: E731
+    relay = lambda n: np.where(np.arange(n) < n // 2, 1.0, -1.0)  # noqa: E731
+    lens = (40, 44, 44, 40, 40)
+    y = np.concatenate([shape(n) for n in lens] + [[0.0, 0.1]])
+    u = np.concatenate([relay(n) for n in lens] + [[1.0, 1.0]])
+    u = np.concatenate([[-1.0], u])
+    y = np.concatenate([[0.0], y])
+    last = features(y, u, 200.0, 1.0, 0.0, 42)
+    each = features(y, u, 200.0, 1.0, 0.0, 42, inputs="each")
+    mean = features(y, u, 200.0, 1.0, 0.0, 42, inputs="mean")
+    assert last.response_cycles == 4 and each.input_cycles == mean.input_cycles == 2
+    assert each.looks.shape == (2, 2, 42) and np.array_equal(each.looks[-1], last.x)
+    assert np.allclose(mean.x, last.x, atol=1e-6) and mean.inputs == "mean"

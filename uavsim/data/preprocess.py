@@ -108,8 +108,12 @@ class CycleFeatures:
         cycle's own ``log |Y1 / (h U1)|`` and of its phase about ``response``'s (rad). Noise
         that corrupts the measured point shows here (``uavsim.ident.select.decide_stable``).
     looks : (m, C, L) float32 or None
-        With ``features(..., inputs="each")``: each of the ``response_cycles`` cycles as its own
-        one-cycle input, oldest first (the last is ``x``); else None.
+        With ``features(..., inputs="each")``: each of the ``response_cycles`` cycles (those that
+        fit ``L``) as its own one-cycle input, oldest first (the last is ``x``); else None.
+    inputs : str
+        What ``x`` (and ``looks``) hold: ``features``'s ``inputs``.
+    input_cycles : int
+        Cycles the network's input(s) were built from (``"last"``: ``n_cycles``).
     """
 
     x: np.ndarray
@@ -125,6 +129,8 @@ class CycleFeatures:
     harmonics_u: np.ndarray | None = None
     response_spread: tuple[float, float] = (0.0, 0.0)
     looks: np.ndarray | None = None
+    inputs: str = "last"
+    input_cycles: int = 1
 
 
 def held_response(G, omega, rate_hz: float) -> np.ndarray:
@@ -246,7 +252,8 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         (the training sets' input, always); ``"mean"`` (``cycles`` 1 only) ``x`` is the mean of the
         response cycles instead (``mean_cycle``), laid out like one cycle; ``"each"`` (``cycles`` 1
         only) ``x`` stays the last cycle and ``looks`` holds every response cycle as its own
-        one-cycle input (the last one is ``x``).
+        one-cycle input (the last one is ``x``). Both take the response cycles after the last
+        one longer than ``L``, if any (the last cycle always fits).
 
     Raises
     ------
@@ -317,16 +324,21 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     each = ty[:, 0] / (h * tu[:, 0])
     with np.errstate(all="ignore"):
         spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
-    looks = None
-    if inputs == "mean":
-        x = _layout(*mean_cycle(y, s, re), L)
-    elif inputs == "each":
-        looks = np.stack([_layout(y[a:b], s[a:b], L) for a, b in zip(re[:-1], re[1:], strict=True)])
+    looks, n_in = None, cycles
+    if inputs != "last":
+        # the response cycles back to the first one longer than the input (the last one fits: checked above)
+        long = np.flatnonzero(np.diff(re) > L)
+        le = re[long[-1] + 1:] if long.size else re
+        n_in = le.size - 1
+        if inputs == "mean":
+            x = _layout(*mean_cycle(y, s, le), L)
+        else:
+            looks = np.stack([_layout(y[a:b], s[a:b], L) for a, b in zip(le[:-1], le[1:], strict=True)])
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
                          start=int(round(start * scale)), stop=int(round(stop * scale)),
                          response=response, response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
                          response_cycles=int(m), harmonics_y=hy, harmonics_u=hu, response_spread=spread,
-                         looks=looks)
+                         looks=looks, inputs=inputs, input_cycles=int(n_in))
 
 
 def _layout(seg_y: np.ndarray, seg_u: np.ndarray, L: int) -> np.ndarray:
