@@ -147,3 +147,20 @@ def test_only_the_response_cycles_that_fit_the_input_are_looked_at():
     assert last.response_cycles == 4 and each.input_cycles == mean.input_cycles == 2
     assert each.looks.shape == (2, 2, 42) and np.array_equal(each.looks[-1], last.x)
     assert np.allclose(mean.x, last.x, atol=1e-6) and mean.inputs == "mean"
+
+
+def test_identification_records_what_the_network_saw(cycles):
+    """By default (``IDENT_INPUTS`` empty) the network sees the last cycle, as in training; asked for more,
+    the answer says what it saw and from how many cycles."""
+    from uavsim.ident.cycle import IDENT_INPUTS, extract_cycle
+    from uavsim.ident.session import identify_cycle
+
+    b, sim = cycles
+    y, u = -sim["e"][0], sim["u"][0]
+    assert b.loop not in IDENT_INPUTS
+    assert extract_cycle(y, u, rate_hz=200.0, h=1.0, bias=0.0, bundle=b).inputs == "last"
+    for inputs in ("last", "mean", "each"):
+        f = extract_cycle(y, u, rate_hz=200.0, h=1.0, bias=0.0, bundle=b, inputs=inputs)
+        ans = identify_cycle(f, b, decision="argmax", combine="mean")
+        osc = ans["oscillation"]
+        assert osc["inputs"] == inputs and osc["input_cycles"] == (1 if inputs == "last" else f.response_cycles)
