@@ -51,7 +51,7 @@ def register(subparsers) -> None:
                         "steady cycles, each steady cycle as its own input (default: the loop's, "
                         "uavsim.ident.cycle.IDENT_INPUTS)")
     p.add_argument("--combine", choices=["logsum", "logmean", "mean"], default=None,
-                   help="with --inputs each: how the cycles' beliefs combine (default logsum: their product)")
+                   help="with --inputs each: how the cycles' beliefs combine (default mean: their mean probabilities)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
