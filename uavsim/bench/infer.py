@@ -4,7 +4,8 @@ One identification is what ``uavsim identify`` does after reading the session,
 on the table path (``uavsim.ident``): the cycle's extraction and checks
 (``extract_cycle``: edges, last cycle, normalization, fundamental response),
 the exported network (``Predictor``: the folded weights of ``weights.npz`` run
-as a numpy matmul chain, no torch) on one input, the model fit and the
+as a numpy matmul chain, no torch) on one input (on each steady cycle, their beliefs
+combined, for a loop whose ``IDENT_INPUTS`` say ``each``: ``cycle_activations``), the model fit and the
 table's gains (``identify_cycle``). The goal is on that whole identification on
 the table path (``identification_table_path``: the grid's Bayes decision,
 ``identify --decision bayes``; <= 2 ms median on one thread). ``identification``
@@ -105,7 +106,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     from uavsim.ident.bundle import load_bundle
     from uavsim.ident.cycle import extract_cycle
     from uavsim.ident.gains import fitted_model, model_optimum, table_gains
-    from uavsim.ident.select import DEFAULT_DECISION, choose_class
+    from uavsim.ident.select import DEFAULT_DECISION, choose_class, cycle_activations
     from uavsim.ident.session import identify_arrays
     from uavsim.tuning.grid import load_grid
 
@@ -137,7 +138,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             t0 = time.perf_counter()
             f = extract_cycle(y, u, **kw)
             t1 = time.perf_counter()
-            pred.predict(f.x)
+            cycle_activations(b, f)
             t2 = time.perf_counter()
             identify_arrays(y, u, beta=g.beta, **kw)
             t3 = time.perf_counter()

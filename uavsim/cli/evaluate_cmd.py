@@ -46,6 +46,12 @@ def register(subparsers) -> None:
     p.add_argument("--guard", action="store_true",
                    help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard); the row "
                         "answer_guarded scores the guard in every run")
+    p.add_argument("--inputs", choices=["last", "mean", "each"], default=None,
+                   help="what the network sees of each relay run: the last cycle (as in training), the mean of the "
+                        "steady cycles, each steady cycle as its own input (default: the loop's, "
+                        "uavsim.ident.cycle.IDENT_INPUTS)")
+    p.add_argument("--combine", choices=["logsum", "logmean", "mean"], default=None,
+                   help="with --inputs each: how the cycles' beliefs combine (default mean: their mean probabilities)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -77,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
-                    optimum=args.optimum, decision=args.decision, guard=args.guard)
+                    optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
+                    combine=args.combine)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

@@ -66,6 +66,9 @@ STEADY_TOL = 0.25
 MIN_CYCLE_SAMPLES = 8
 #: most cycles the fundamental response is averaged over (the last ones, the first is never used)
 RESPONSE_CYCLES = 4
+#: what of a run the network input holds: the last cycles (training), the mean of the response cycles,
+#: each response cycle as its own input (``features``; identification's choice: ``uavsim.ident.cycle``)
+INPUTS = ("last", "mean", "each")
 #: harmonics of the cycle's waveform measured over the same cycles (1 = the fundamental)
 HARMONICS = 7
 #: harmonics are measured (and scored) strictly below this fraction of the Nyquist frequency
@@ -104,6 +107,13 @@ class CycleFeatures:
         How much the response cycles disagree: the standard deviations over them of each
         cycle's own ``log |Y1 / (h U1)|`` and of its phase about ``response``'s (rad). Noise
         that corrupts the measured point shows here (``uavsim.ident.select.decide_stable``).
+    looks : (m, C, L) float32 or None
+        With ``features(..., inputs="each")``: each of the ``response_cycles`` cycles (those that
+        fit ``L``) as its own one-cycle input, oldest first (the last is ``x``); else None.
+    inputs : str
+        What ``x`` (and ``looks``) hold: ``features``'s ``inputs``.
+    input_cycles : int
+        Cycles the network's input(s) were built from (``"last"``: ``n_cycles``).
     """
 
     x: np.ndarray
@@ -118,6 +128,9 @@ class CycleFeatures:
     harmonics_y: np.ndarray | None = None
     harmonics_u: np.ndarray | None = None
     response_spread: tuple[float, float] = (0.0, 0.0)
+    looks: np.ndarray | None = None
+    inputs: str = "last"
+    input_cycles: int = 1
 
 
 def held_response(G, omega, rate_hz: float) -> np.ndarray:
@@ -213,7 +226,7 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
 
 
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
-             cycles: int = 1, steady_tol: float | None = None) -> CycleFeatures:
+             cycles: int = 1, steady_tol: float | None = None, inputs: str = "last") -> CycleFeatures:
     """Network input from one relay test.
 
     Parameters
@@ -234,6 +247,13 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         Largest relative difference of the last two cycles' lengths (and of the response
         cycles'); None: the 25 % of the module docstring, which the training sets always use.
         Identification may pass a looser one (``uavsim.ident.cycle.IDENT_STEADY_TOL``).
+    inputs : ``"last"``, ``"mean"`` or ``"each"``
+        What the network is to see of the run (``INPUTS``): ``"last"`` the last ``cycles`` cycles
+        (the training sets' input, always); ``"mean"`` (``cycles`` 1 only) ``x`` is the mean of the
+        response cycles instead (``mean_cycle``), laid out like one cycle; ``"each"`` (``cycles`` 1
+        only) ``x`` stays the last cycle and ``looks`` holds every response cycle as its own
+        one-cycle input (the last one is ``x``). Both take the response cycles after the last
+        one longer than ``L``, if any (the last cycle always fits).
 
     Raises
     ------
@@ -249,6 +269,8 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u))):
         raise NoOscillation("the traces contain NaN or inf")
     tol = STEADY_TOL if steady_tol is None else float(steady_tol)
+    if inputs not in INPUTS or (inputs != "last" and cycles != 1):
+        raise UserError(f"inputs must be one of {', '.join(INPUTS)} ('last' with cycles > 1), got {inputs!r}")
     scale = 1.0
     precise_period = None
     if abs(rate_hz - INPUT_RATE_HZ) > 1e-9:
@@ -286,9 +308,7 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     duty = float(np.mean(seg_u > 0))
     if not _MIN_DUTY <= duty <= _MAX_DUTY:
         raise NoOscillation(f"unsymmetric cycle: relay up {100 * duty:.0f}% of the time")
-    x = np.zeros((len(CHANNELS), L), dtype=np.float32)
-    x[0, L - n:] = (seg_y - 0.5 * (hi + lo)) / amp
-    x[1, L - n:] = seg_u
+    x = _layout(seg_y, seg_u, L)
     period = precise_period if precise_period is not None else n / cycles / INPUT_RATE_HZ
     # the fundamental response over the last steady cycles (never the first, transient one)
     m = min(RESPONSE_CYCLES, len(edges) - 2)
@@ -304,10 +324,65 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     each = ty[:, 0] / (h * tu[:, 0])
     with np.errstate(all="ignore"):
         spread = (float(np.std(np.log(np.abs(each)))), float(np.std(np.angle(each / response))))
+    looks, n_in = None, cycles
+    if inputs != "last":
+        # the response cycles back to the first one longer than the input (the last one fits: checked above)
+        long = np.flatnonzero(np.diff(re) > L)
+        le = re[long[-1] + 1:] if long.size else re
+        n_in = le.size - 1
+        if inputs == "mean":
+            x = _layout(*mean_cycle(y, s, le), L)
+        else:
+            looks = np.stack([_layout(y[a:b], s[a:b], L) for a, b in zip(le[:-1], le[1:], strict=True)])
     return CycleFeatures(x=x, period=period, amplitude=amp, n_cycles=cycles,
                          start=int(round(start * scale)), stop=int(round(stop * scale)),
                          response=response, response_period=float(np.mean(lens)) / INPUT_RATE_HZ,
-                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu, response_spread=spread)
+                         response_cycles=int(m), harmonics_y=hy, harmonics_u=hu, response_spread=spread,
+                         looks=looks, inputs=inputs, input_cycles=int(n_in))
+
+
+def _layout(seg_y: np.ndarray, seg_u: np.ndarray, L: int) -> np.ndarray:
+    """One cycle's ``y`` and normalized command as a (C, L) input: ``y`` centred on its mid-range over half its
+    peak-to-peak, both right-aligned, zero-padded (module docstring, steps 3-4)."""
+    n = seg_y.size
+    hi, lo = float(seg_y.max()), float(seg_y.min())
+    x = np.zeros((len(CHANNELS), L), dtype=np.float32)
+    x[0, L - n:] = (seg_y - 0.5 * (hi + lo)) / (0.5 * (hi - lo))
+    x[1, L - n:] = seg_u
+    return x
+
+
+def mean_cycle(y: np.ndarray, s: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of the cycles between consecutive rising ``edges``, each resampled to their mean length.
+
+    Each cycle ``[e_i, e_{i+1})`` is read at ``N = round(mean length)`` points equally spaced from its
+    rising edge (``y`` linearly interpolated, the command ``s`` held), so the cycles line up at their
+    rising edges and at their ends; ``y`` is averaged and the command is the sign of the averaged
+    command (a relay command is +-1; where the cycles' falling edges differ it switches where most do).
+    Zero-mean noise falls by about the square root of the cycles' count; cycles of one length give
+    their own samples' mean.
+
+    Parameters
+    ----------
+    y : (T,) output
+    s : (T,) normalized command ``(u - bias) / h``
+    edges : (m + 1,) sample indices of rising edges, m >= 1
+
+    Returns
+    -------
+    (N,) float64 mean output, (N,) float64 command in {-1, +1}
+    """
+    edges = np.asarray(edges, dtype=np.int64)
+    lens = np.diff(edges)
+    N = int(round(float(lens.mean())))
+    k = np.arange(N, dtype=np.float64) / N
+    ym = np.zeros(N)
+    sm = np.zeros(N)
+    for e0, n in zip(edges[:-1], lens, strict=True):
+        pos = k * n
+        ym += np.interp(pos, np.arange(n + 1, dtype=np.float64), y[e0 : e0 + n + 1])
+        sm += s[e0 + np.floor(pos + 1e-9).astype(np.int64)]
+    return ym / lens.size, np.where(sm >= 0.0, 1.0, -1.0)
 
 
 def features_batch(Y: np.ndarray, U: np.ndarray, rate_hz: float, h: np.ndarray, bias: np.ndarray, L: int, *,

@@ -47,6 +47,7 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 
 __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL", "UNEVEN_CYCLE_LOOPS",
+           "IDENT_INPUTS",
            "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
@@ -64,6 +65,9 @@ MAX_CYCLES_DROPPED = 3
 IDENT_STEADY_TOL = 0.75
 #: the loops whose identification takes such uneven cycles (module docstring)
 UNEVEN_CYCLE_LOOPS = ("lateral",)
+#: what the network sees of a loop's run (``uavsim.data.preprocess.features``'s ``inputs``; a loop not
+#: named, or a network of several cycles: the last cycle, as in training)
+IDENT_INPUTS: dict[str, str] = {}
 _RESAMPLE_MARGIN = 0.02
 
 
@@ -114,7 +118,7 @@ def phase_refusal(response: complex, response_period: float, beta: float | None,
 
 
 def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
-                  beta: float | None = None) -> CycleFeatures:
+                  beta: float | None = None, inputs: str | None = None) -> CycleFeatures:
     """The network input and the measured response of a relay run, checked (module docstring).
 
     Parameters
@@ -124,6 +128,7 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     h, bias : relay amplitude and bias, command units
     bundle : the network's bundle (preprocessing settings, classes' periods, the relay's beta)
     beta : the run's MRFT parameter; must match the network's when given
+    inputs : what the network sees (``features``'s ``inputs``); None: the loop's ``IDENT_INPUTS``
 
     Raises
     ------
@@ -133,6 +138,8 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
         A run at another ``beta`` than the network's.
     """
     nb = bundle.rule.beta
+    if inputs is None:
+        inputs = IDENT_INPUTS.get(bundle.loop, "last") if bundle.cycles == 1 else "last"
     if beta is not None and abs(float(beta) - nb) > 1e-6:
         raise UserError(f"the run used beta={beta} but the {bundle.loop} network was trained at beta={nb:g}")
     y = np.asarray(y, dtype=np.float64)
@@ -150,7 +157,8 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     cuts = [len(y)] + [int(e) + 1 for e in edges[::-1][: max(len(edges) - bundle.cycles - 2, 0)] if e >= earliest]
 
     def checked(stop: int, tol: float | None) -> CycleFeatures:
-        f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol)
+        f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol,
+                     inputs=inputs)
         why = (saturation_refusal(y[f.start : f.stop])
                or period_refusal(f.period, bundle.period_bounds())
                or phase_refusal(f.response, f.response_period, nb, bundle.input_rate_hz))

@@ -71,7 +71,7 @@ from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import guard_scale
-from uavsim.ident.select import decide_blend, decide_fitted
+from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
 from uavsim.lumped.params import RANGES, LumpedParams
@@ -107,6 +107,8 @@ class EvalSpec:
     optimum : identification's ``optimum`` mode (``uavsim.ident.session``)
     decision : identification's class decision (``uavsim.ident.select``; None: the bundle's)
     guard : identification backs its PD off by the phase-margin guard (``uavsim.ident.guard``)
+    inputs : what the network sees of each run (``extract_cycle``'s ``inputs``; None: the loop's ``IDENT_INPUTS``)
+    combine : how several looks' beliefs combine (``uavsim.ident.select.cycle_activations``; None: the default)
     """
 
     loop: str = "altitude"
@@ -119,6 +121,8 @@ class EvalSpec:
     optimum: str = "never"
     decision: str | None = None
     guard: bool = False
+    inputs: str | None = None
+    combine: str | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -249,7 +253,7 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
 
 
 def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
-                  guard: bool = False) -> dict[str, Any]:
+                  guard: bool = False, inputs: str | None = None, combine: str | None = None) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones)."""
     from uavsim.data.preprocess import features
 
@@ -262,8 +266,9 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         try:
             t0 = time.perf_counter()
-            f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, **kw)
-            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard)
+            f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, inputs=inputs, **kw)
+            res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard,
+                                               combine=combine)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             res["why"][i] = str(exc)
@@ -272,7 +277,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
-        res["act"][i] = bundle.predictor.activations(f.x)[0]
+        res["act"][i] = cycle_activations(bundle, f, combine=combine)[0]
         p = decide(res["act"][i], decision="argmax", temperature=bundle.temperature).p[0]
         top = np.argsort(-p)[:TOP_RECORDED]
         res["top"][i] = [[int(c), float(p[c])] for c in top]
@@ -434,7 +439,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard)
+        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine)
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,

@@ -75,7 +75,8 @@ from uavsim.learning.decision import DECISIONS, Decision, decide
 
 __all__ = ["DECISIONS", "IDENT_DECISIONS", "DEFAULT_DECISION", "FITTED_BELIEFS", "FITTED_CANDIDATES",
            "STABLE_PHASE_DEG", "STABLE_SCALES", "SPREAD_LIMITS", "SPREAD_SCALES", "BLEND_GRID_WEIGHT", "Decision",
-           "decide_class", "decide_fitted", "decide_blend", "decide_stable", "choose_class"]
+           "LOOK_COMBINE", "DEFAULT_LOOK_COMBINE", "cycle_activations", "decide_class", "decide_fitted", "decide_blend",
+           "decide_stable", "choose_class"]
 
 #: decisions identification answers: the trainer's two, the one over fitted models, stability first,
 #: the fitted models' cost plus the grid's
@@ -96,6 +97,39 @@ BLEND_GRID_WEIGHT = 1.0
 SPREAD_LIMITS = (0.4, 15.0)
 #: factors the ``stable`` decision may answer on a suspect cycle, largest first
 SPREAD_SCALES = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5)
+#: how the beliefs of several looks at a run combine (``cycle_activations``)
+LOOK_COMBINE = ("logsum", "logmean", "mean")
+#: the default: their mean, the one of the three that never added unstable answers on the inner loops'
+#: development seeds 11-14 (the product, over-confident, added 10 on attitude: docs/results/identification.md)
+DEFAULT_LOOK_COMBINE = "mean"
+
+
+def cycle_activations(bundle: ModelBundle, f, *, combine: str | None = None) -> np.ndarray:
+    """The network's activations (1, n) for an extracted cycle ``f`` (``CycleFeatures``).
+
+    One input (``f.x``): its activations. Several looks (``f.looks``, each response cycle as its own
+    input): the looks' beliefs ``p_i = softmax(a_i / T)`` combined by ``combine`` (``LOOK_COMBINE``;
+    None: ``DEFAULT_LOOK_COMBINE``) and returned as activations ``T log p`` of that belief, so every
+    decision takes it as it takes one input's: ``"logsum"`` the normalized product of the ``p_i``
+    (independent looks), ``"logmean"`` their normalized geometric mean (one look's sharpness),
+    ``"mean"`` their mean.
+    """
+    from uavsim.learning.decision import softmax
+
+    looks = getattr(f, "looks", None)
+    if looks is None or len(looks) < 2:
+        return bundle.predictor.activations(f.x)
+    combine = DEFAULT_LOOK_COMBINE if combine is None else combine
+    if combine not in LOOK_COMBINE:
+        raise UserError(f"combine must be one of {', '.join(LOOK_COMBINE)}, got {combine!r}")
+    T = bundle.temperature
+    p = softmax(bundle.predictor.activations(looks), T)
+    with np.errstate(divide="ignore"):
+        if combine == "mean":
+            lp = np.log(p.mean(axis=0))
+        else:
+            lp = np.log(np.maximum(p, 1e-300)).sum(axis=0) / (p.shape[0] if combine == "logmean" else 1.0)
+    return (T * (lp - lp.max()))[None, :]
 
 
 def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str | None = None,

@@ -43,7 +43,7 @@ from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.select import decide_class
+from uavsim.ident.select import cycle_activations, decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -61,7 +61,7 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
                    attitude: dict[str, float] | None = None, decision: str | None = None,
-                   guard: bool = False) -> dict[str, Any]:
+                   guard: bool = False, combine: str | None = None) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -84,6 +84,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Back the table's PD off where the answer's fitted model with a few degrees more lag
         needs it (``uavsim.ident.guard``; the answer's ``guard``: ``scale``, ``phase_deg``,
         ``latency_ms``). Not applied to an optimum answered.
+    combine : str or None
+        How the beliefs of several looks at the run combine, where ``f`` holds them
+        (``uavsim.ident.select.cycle_activations``); None: ``DEFAULT_LOOK_COMBINE``.
 
     Returns
     -------
@@ -96,7 +99,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     """
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
-    act = bundle.predictor.activations(f.x)
+    act = cycle_activations(bundle, f, combine=combine)
     dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
                        response_period=np.array([f.response_period]), response_spread=np.array([f.response_spread]))
     c = int(dec.cls[0])
@@ -151,7 +154,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                        "scale": dec_scale}
     ans["softmax_top"] = float(dec.p[0, c])
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
-                          "stop": f.stop}
+                          "stop": f.stop, "inputs": f.inputs, "input_cycles": f.input_cycles}
     ans["response"] = {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
                        "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}
     return ans
