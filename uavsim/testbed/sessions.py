@@ -20,6 +20,11 @@ step_small.csv     PD at half the tuning rule's gains on the nominal model, step
 step_large.csv     the same PD, step 6 a (a: the expected cycle amplitude at h)
 =================  =========================================================
 
+The step runs' PD takes its derivative on the measurement (``derivative =
+"measurement"``, :data:`STEP_DERIVATIVE`), as autopilots' loops do: a PD
+differentiating the error would send the step's sample a command several
+times the relay's, which the ESCs clip and slew and no lumped model does.
+
 ``h`` puts the expected cycle near 3 cm or 0.03 rad and keeps 3 h inside
 60% of the ESCs' downward headroom. The session has no ``[model]`` (the
 user's case: the base model is identified from the relay run later) and no
@@ -69,7 +74,7 @@ __all__ = ["RECIPE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "HELDOUT_SEEDS", "Ses
            "session_name", "hover_noise_settings", "hold_controller", "relay_amplitude"]
 
 #: recipe name written in every truth file and set recipe; bump when the bytes of a seed change
-RECIPE = "uavsim-testbed/1"
+RECIPE = "uavsim-testbed/2"
 KINDS = ("single", "pair", "outside", "none")
 #: chance of each kind when all are asked for (renormalised over the kinds asked for)
 KIND_WEIGHTS = {"single": 0.4, "pair": 0.2, "outside": 0.2, "none": 0.2}
@@ -84,6 +89,8 @@ HOVER_SETTLE_S = 2.0
 HOVER_RECORD_S = 4.0
 BETWEEN_RUNS_S = 1.0
 STEP_TIME_S = 1.0
+#: what the step runs' PD differentiates (``uavsim-testbed/1`` flew "error")
+STEP_DERIVATIVE = "measurement"
 
 
 def session_name(seed: int) -> str:
@@ -293,9 +300,9 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
         RunSpec("np_b073_h3.csv", NP_MRFT_RUN, beta=-0.73, h=3 * h, tau_obs=settings[-0.73][0], a_n=settings[-0.73][1]),
         RunSpec("np_b030_h1.csv", NP_MRFT_RUN, beta=-0.3, h=h, tau_obs=settings[-0.3][0], a_n=settings[-0.3][1]),
         RunSpec("step_small.csv", "step", kp=gk["kp"], kd=gk["kd"], derivative_filter_hz=gk["derivative_filter_hz"],
-                step=round(2 * s.amp, 9), step_time=STEP_TIME_S),
+                step=round(2 * s.amp, 9), step_time=STEP_TIME_S, derivative=STEP_DERIVATIVE),
         RunSpec("step_large.csv", "step", kp=gk["kp"], kd=gk["kd"], derivative_filter_hz=gk["derivative_filter_hz"],
-                step=round(6 * s.amp, 9), step_time=STEP_TIME_S),
+                step=round(6 * s.amp, 9), step_time=STEP_TIME_S, derivative=STEP_DERIVATIVE),
     ]  # fmt: skip
     runs, info, K_by_run = [], [], {}
     for spec in specs:
