@@ -10,6 +10,7 @@ import pytest
 
 from uavsim.cli.main import main as cli
 from uavsim.control.relay import MRFT, NPMRFT
+from uavsim.control.runs import run_controller
 from uavsim.formats.session import read_session
 from uavsim.lumped import exact_limit_cycle
 from uavsim.noise.analysis import rising_edges
@@ -250,3 +251,18 @@ def test_npmrft_relay_on_the_testbed_is_the_sessions_controller(short_session):
     relay = NPMRFT(s.beta, s.h, s.tau_obs, s.a_n, RATE, 1)
     u = np.array([relay(np.array([r - y]))[0] for r, y in zip(run.data.r, run.data.y, strict=True)])
     assert np.array_equal(u, run.data.u)
+
+
+def test_step_runs_differentiate_the_measurement(short_session):
+    """The step runs are written with derivative = "measurement" and replay exactly through that PD: no kick."""
+    path, session, _ = short_session
+    back = read_session(path)
+    for run in back.runs[3:]:
+        s = run.spec
+        assert s.kind == "step" and s.derivative == "measurement"
+        pd = run_controller(s, RATE)
+        d = run.data
+        u = np.array([pd(np.array([r - y]), np.array([r]))[0] for r, y in zip(d.r, d.y, strict=True)])
+        np.testing.assert_allclose(u, d.u, rtol=0, atol=1e-9 * np.abs(d.u).max())
+        k = int(np.argmax(d.r != 0))  # the step's sample: the command moves by about kp * step, not by a kick
+        assert abs(d.u[k] - d.u[k - 1]) < 2 * abs(s.kp * s.step)
