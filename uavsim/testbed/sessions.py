@@ -69,7 +69,7 @@ from uavsim.testbed.hidden import OUTSIDE, VOCABULARY, HiddenEffect, Scales, dra
 from uavsim.testbed.vehicle import TESTBED_LOOPS, TestbedVehicle, draw_vehicle, lumped_equivalent
 from uavsim.tuning.rule import TuningRule
 
-__all__ = ["RECIPE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "HELDOUT_SEEDS", "SessionPlan", "TestbedTruth",
+__all__ = ["RECIPE", "STEP_DERIVATIVE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "HELDOUT_SEEDS", "SessionPlan", "TestbedTruth",
            "plan_session", "testbed_session", "write_testbed", "read_truth", "truth_json", "parse_seeds", "parse_kinds",
            "session_name", "hover_noise_settings", "hold_controller", "relay_amplitude"]
 
