@@ -271,3 +271,24 @@ def test_lag_like_candidates_take_their_phase_out_of_tau():
     assert ev.tau_shift("delay", 0.01) == 0.0
     assert ev.tau_shift("none", 0.0) == 0.0  # the bare model's episodes of an identified session
     assert GapEvaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0
+
+
+def test_simulated_step_runs_follow_their_derivative():
+    # the gap workflow's simulation flies each step run's own PD: the error form kicks the
+    # command on the step sample, the measurement form sends kp e there (the output is at rest)
+    from uavsim.formats.session import Run, RunData, Session
+    from uavsim.gap.simulate import Episode, simulate
+
+    rate, T = 200.0, 120
+    t = np.arange(T) / rate
+    data = RunData(t, np.zeros(T), np.zeros(T), np.zeros(T))
+    spec = dict(kind="step", kp=2.0, kd=0.3, derivative_filter_hz=10.0, step=0.05, step_time=0.2)
+    runs = [Run(RunSpec("e.csv", **spec), data), Run(RunSpec("m.csv", **spec, derivative="measurement"), data)]
+    session = Session(loop="pitch", control_rate_hz=rate, runs=runs)
+    model = ModelSpec(K=20.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+    err, meas = simulate(session, model, [Episode(0), Episode(1)], seed=0, nthread=1)
+    k = int(0.2 * rate)
+    assert np.array_equal(err.u[:k], meas.u[:k])
+    assert meas.u[k] == pytest.approx(2.0 * 0.05, rel=1e-9)
+    a = (2 * math.pi * 10.0 / rate) / (1 + 2 * math.pi * 10.0 / rate)
+    assert err.u[k] - meas.u[k] == pytest.approx(0.3 * a * 0.05 * rate, rel=1e-9)  # the kick, 7x kp e here

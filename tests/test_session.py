@@ -219,6 +219,19 @@ def test_round_trip_without_model_or_effects(tmp_path: Path) -> None:
     assert_same_session(s, back)
 
 
+def test_step_derivative_round_trip(tmp_path: Path) -> None:
+    # "measurement" is written and read back; "error" (what an absent key reads as) is not written
+    s = awkward_session(n=10)
+    s.runs[2].spec.derivative = "measurement"
+    folder = write_session(s, tmp_path / "m")
+    assert 'derivative = "measurement"' in (folder / "session.toml").read_text()
+    back = read_session(folder)
+    assert back.runs[2].spec.derivative == "measurement" and back.runs[0].spec.derivative == "error"
+    assert_same_session(s, back)
+    s.runs[2].spec.derivative = "error"
+    assert "derivative =" not in (write_session(s, tmp_path / "e") / "session.toml").read_text()
+
+
 def test_round_trip_large_arrays(tmp_path: Path) -> None:
     s = awkward_session(n=100_000, seed=2)
     assert_same_session(s, read_session(write_session(s, tmp_path)))
@@ -316,6 +329,8 @@ def test_write_rejects_invalid_session_and_writes_nothing(tmp_path: Path) -> Non
         (lambda s: setattr(s.runs[0].spec, "file", "session.toml"), "cannot be"),
         (lambda s: setattr(s.runs[2].spec, "bias", 0.5), "not a key of a step run"),
         (lambda s: setattr(s.runs[1].spec, "tau_obs", 0.1), "not a key of a mrft run"),
+        (lambda s: setattr(s.runs[1].spec, "derivative", "measurement"), "not a key of a mrft run"),
+        (lambda s: setattr(s.runs[2].spec, "derivative", "setpoint"), "unknown derivative of a step run 'setpoint'"),
         (lambda s: setattr(s, "runs", []), "no runs"),
         (
             lambda s: setattr(s.runs[0], "data", RunData(*(np.zeros(3),) * 3, np.zeros(4))),
@@ -518,6 +533,8 @@ MALFORMED = {
     "unknown_far_key": (doc_case(_set(("runs", 2, "zzz"), 0.1)), TOML, "valid keys"),
     "other_kind_key": (doc_case(_set(("runs", 1, "tau_obs"), 0.1)), TOML, "not a key of a mrft run"),
     "step_with_bias": (doc_case(_set(("runs", 2, "bias"), 0.1)), TOML, "not a key of a step run"),
+    "relay_with_derivative": (doc_case(_set(("runs", 0, "derivative"), "measurement")), TOML,
+                              "not a key of a np-mrft run"),
     "other_effect_param": (doc_case(_set(("effects", 0, "T"), 0.1)), TOML, "not a parameter of a delay effect"),
     # missing keys
     "missing_loop": (doc_case(_del(("loop",))), TOML, "missing key 'loop'"),
@@ -550,6 +567,9 @@ MALFORMED = {
     "bad_loop": (doc_case(_set(("loop",), "altitdue")), TOML, "unknown loop 'altitdue' (did you mean 'altitude'?"),
     "bad_kind": (doc_case(_set(("runs", 0, "kind"), "np_mrft")), TOML, "unknown run kind"),
     "bad_effect": (doc_case(_set(("effects", 0, "name"), "dealy")), TOML, "unknown effect name"),
+    "bad_derivative": (doc_case(_set(("runs", 2, "derivative"), "measurment")), TOML,
+                       "unknown derivative of a step run 'measurment' (did you mean 'measurement'?"),
+    "derivative_number": (doc_case(_set(("runs", 2, "derivative"), 1)), TOML, "derivative must be a string"),
     # invalid values
     "beta_out_of_range": (doc_case(_set(("runs", 0, "beta"), 1.2)), TOML, "beta must be in (-1, 1)"),
     "h_negative": (doc_case(_set(("runs", 1, "h"), -1)), TOML, "h must be > 0"),

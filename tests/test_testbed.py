@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from uavsim.cli.main import main as cli
+from uavsim.control.pd import PD
 from uavsim.control.relay import MRFT, NPMRFT
+from uavsim.control.runs import run_controller
 from uavsim.formats.session import read_session
 from uavsim.lumped import exact_limit_cycle
 from uavsim.noise.analysis import rising_edges
@@ -25,6 +27,7 @@ from uavsim.testbed.hidden import (
 )
 from uavsim.testbed.sessions import (
     RECIPE,
+    STEP_DERIVATIVE,
     parse_kinds,
     parse_seeds,
     plan_session,
@@ -250,3 +253,30 @@ def test_npmrft_relay_on_the_testbed_is_the_sessions_controller(short_session):
     relay = NPMRFT(s.beta, s.h, s.tau_obs, s.a_n, RATE, 1)
     u = np.array([relay(np.array([r - y]))[0] for r, y in zip(run.data.r, run.data.y, strict=True)])
     assert np.array_equal(u, run.data.u)
+
+
+def test_step_runs_replay_through_their_pd(short_session):
+    """The step runs carry the testbed's derivative choice and replay exactly through that PD."""
+    path, _, _ = short_session
+    for run in read_session(path).runs[3:]:
+        s, d = run.spec, run.data
+        assert s.kind == "step" and s.derivative == STEP_DERIVATIVE
+        pd = run_controller(s, RATE)
+        u = np.array([(pd(np.array([r - y]), np.array([r])) if pd.reads_reference else pd(np.array([r - y])))[0]
+                      for r, y in zip(d.r, d.y, strict=True)])
+        np.testing.assert_allclose(u, d.u, rtol=0, atol=1e-9 * np.abs(d.u).max())
+
+
+def test_flight_hands_the_reference_to_a_measurement_pd(roll_plan):
+    """A PD on the measurement flown on the vehicle: its record replays exactly, and the step sends no kick."""
+    g = roll_plan.step_gains
+    make = lambda: PD(g["kp"], g["kd"], g["derivative_filter_hz"], RATE, 1, derivative="measurement")  # noqa: E731
+    step = 2 * roll_plan.scales.amp
+    rec = Flight(roll_plan.vehicle, "roll", [], np.random.default_rng(2)).fly(
+        make(), 0.5, lambda t: step if t >= 0.1 else 0.0)
+    pd = make()
+    u = np.array([pd(np.array([r - y]), np.array([r]))[0] for r, y in zip(rec.r, rec.y, strict=True)])
+    np.testing.assert_allclose(u, rec.u, rtol=0, atol=1e-9 * np.abs(rec.u).max())
+    k = int(round(0.1 * RATE))
+    assert abs(rec.u[k] - rec.u[k - 1]) < 1.5 * g["kp"] * step  # the error form would add kd a step / Ts
+    assert g["kd"] * pd.a[0] * step / pd.Ts > 5 * g["kp"] * step

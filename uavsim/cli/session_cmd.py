@@ -105,7 +105,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _params_text(params: dict[str, Any]) -> str:
-    return " ".join(f"{k}={v:.6g}" for k, v in params.items() if v is not None)
+    return " ".join(f"{k}={v}" if isinstance(v, str) else f"{k}={v:.6g}" for k, v in params.items() if v is not None)
 
 
 def _print_text(summary: dict[str, Any]) -> None:

@@ -2,7 +2,9 @@
 
 - :mod:`~uavsim.control.relay`: MRFT and NP-MRFT, the one implementation of the
   session format's relay semantics (both readings).
-- :mod:`~uavsim.control.pd`: the step test's PD with a filtered derivative.
+- :mod:`~uavsim.control.pd`: the step test's PD with a filtered derivative of the
+  error or of the measurement (then it has ``reads_reference`` and is called with
+  the reference too: ``pd(r - y, r)``).
 - :mod:`~uavsim.control.runs`: the controller of a session run, from its
   ``RunSpec`` (one factory for replay and the testbed's flights; the gap
   workflow's batch of runs of several kinds, ``uavsim.gap.simulate.SessionController``,

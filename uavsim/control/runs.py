@@ -7,7 +7,7 @@ one function.
 
     from uavsim.control.runs import run_controller
     ctrl = run_controller(run.spec, rate_hz=200.0, reading=session.reading)   # n = 1
-    u = ctrl(np.array([r - y]))
+    u = ctrl(np.array([r - y]))     # a PD with ``reads_reference``: ctrl(np.array([r - y]), np.array([r]))
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ def run_controller(spec: RunSpec, rate_hz: float, *, n: int = 1, reading: int = 
     ----------
     spec : RunSpec
         The run's entry: ``np-mrft`` (``beta``, ``h``, ``tau_obs``, ``a_n``, ``bias``), ``mrft``
-        (``beta``, ``h``, ``bias``) or ``step`` (``kp``, ``kd``, ``derivative_filter_hz``).
+        (``beta``, ``h``, ``bias``) or ``step`` (``kp``, ``kd``, ``derivative_filter_hz``, ``derivative``).
     rate_hz : float
         The session's controller rate, Hz.
     n : int
@@ -41,5 +41,5 @@ def run_controller(spec: RunSpec, rate_hz: float, *, n: int = 1, reading: int = 
     if spec.kind == MRFT_RUN:
         return MRFT(spec.beta, spec.h, rate_hz, n, bias=bias, reading=reading)
     if spec.kind == STEP_RUN:
-        return PD(spec.kp, spec.kd, spec.derivative_filter_hz, rate_hz, n)
+        return PD(spec.kp, spec.kd, spec.derivative_filter_hz, rate_hz, n, derivative=spec.derivative)
     raise UserError(f"{spec.file}: unknown run kind {spec.kind!r} (known: {NP_MRFT_RUN}, {MRFT_RUN}, {STEP_RUN})")

@@ -67,6 +67,7 @@ __all__ = [
     "NP_MRFT_RUN",
     "MRFT_RUN",
     "STEP_RUN",
+    "STEP_DERIVATIVES",
     "RUN_KEYS",
     "SESSION_FILE",
     "EffectSpec",
@@ -100,6 +101,10 @@ LATERAL_LOOPS = ("lateral_x", "lateral_y")
 NP_MRFT_RUN, MRFT_RUN, STEP_RUN = "np-mrft", "mrft", "step"
 RUN_KINDS = (NP_MRFT_RUN, MRFT_RUN, STEP_RUN)
 RELAY_KINDS = (NP_MRFT_RUN, MRFT_RUN)
+# What a step run's PD differentiates (docs/formats/session.md, "step"): the error
+# (the default, the meaning of every session written before the key existed) or the
+# measurement (no derivative kick when the reference steps).
+STEP_DERIVATIVES = ("error", "measurement")
 CSV_HEADER = ("t", "r", "y", "u")
 
 # The effect vocabulary of the spec, in its table order: name -> parameter names, and
@@ -111,12 +116,14 @@ CSV_HEADER = ("t", "r", "y", "u")
 RUN_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     NP_MRFT_RUN: (("beta", "h", "tau_obs", "a_n"), ("bias",)),
     MRFT_RUN: (("beta", "h"), ("bias",)),
-    STEP_RUN: (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ()),
+    STEP_RUN: (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ("derivative",)),
 }
+# Parameters whose value is a word, each with its words; the first is what an absent key reads as.
+_RUN_WORDS: dict[str, tuple[str, ...]] = {"derivative": STEP_DERIVATIVES}
 # Every parameter field of RunSpec, in the order they are written.
 _RUN_PARAMS = (
     "beta", "h", "tau_obs", "a_n", "bias",
-    "kp", "kd", "derivative_filter_hz", "step", "step_time",
+    "kp", "kd", "derivative_filter_hz", "step", "step_time", "derivative",
 )  # fmt: skip
 _RUN_ALL_KEYS = ("file", "kind", *_RUN_PARAMS)
 _TOP_KEYS = ("format", "loop", "control_rate_hz", "model", "runs", "effects")
@@ -218,6 +225,9 @@ class RunSpec:
         Reference step size, output units (step).
     step_time : float, optional
         Time of the reference step, s, >= 0 (step).
+    derivative : str
+        What the step's PD differentiates, one of :data:`STEP_DERIVATIVES`:
+        ``"error"`` (the default; also what relay runs keep) or ``"measurement"`` (step).
     """
 
     file: str
@@ -232,6 +242,7 @@ class RunSpec:
     derivative_filter_hz: float | None = None
     step: float | None = None
     step_time: float | None = None
+    derivative: str = STEP_DERIVATIVES[0]
 
 
 @dataclass
@@ -367,6 +378,13 @@ def _is_plus_zero(x: float) -> bool:
     return x == 0 and math.copysign(1.0, x) > 0
 
 
+def _is_unset(name: str, value: Any) -> bool:
+    """Whether an optional run key holds the value its absence reads as."""
+    if name in _RUN_WORDS:
+        return value == _RUN_WORDS[name][0]
+    return _is_plus_zero(value)
+
+
 # ---------------------------------------------------------------------------
 # Validation shared by the reader, the writer and the controllers
 
@@ -390,13 +408,22 @@ def validate_run_params(spec: RunSpec, where: str) -> None:
         Unknown kind, a required parameter missing, a parameter of another kind
         set, a non-number, or a value out of range: beta in (-1, 1), h > 0,
         tau_obs >= 0 s, a_n >= 0, bias/kp/kd/step finite,
-        derivative_filter_hz > 0 Hz, step_time >= 0 s.
+        derivative_filter_hz > 0 Hz, step_time >= 0 s, derivative one of
+        :data:`STEP_DERIVATIVES`.
     """
     kind = _choice(_string(spec.kind, "kind", where), "kind", where, RUN_KINDS, "run kind")
     required, optional = RUN_KEYS[kind]
     values: dict[str, float] = {}
     for name in _RUN_PARAMS:
         value = getattr(spec, name)
+        if name in _RUN_WORDS:
+            words = _RUN_WORDS[name]
+            if name in optional:
+                _choice(_string(value, name, where), name, where, words, f"{name} of a {kind} run")
+            elif value != words[0]:
+                # the default word means "not set", as +0.0 does for bias
+                raise SessionError(f"{where}: {name!r} is not a key of a {kind} run")
+            continue
         if name in required:
             if value is None:
                 raise SessionError(f"{where}: missing key {name!r} (required for a {kind} run)")
@@ -826,7 +853,12 @@ def _parse_run(table: dict, i: int, toml: str) -> RunSpec:
     for key in required:
         if key not in table:
             raise SessionError(f"{where}: missing key {key!r} (required for a {kind} run)")
-    values = {k: _number(v, k, where) for k, v in table.items() if k not in ("file", "kind")}
+    values: dict[str, Any] = {}
+    for k, v in table.items():
+        if k in _RUN_WORDS:
+            values[k] = _choice(_string(v, k, where), k, where, _RUN_WORDS[k], f"{k} of a {kind} run")
+        elif k not in ("file", "kind"):
+            values[k] = _number(v, k, where)
     spec = RunSpec(file=file, kind=kind, **values)
     validate_run_params(spec, where)
     return spec
@@ -961,9 +993,9 @@ def _session_toml(session: Session) -> str:
         required, optional = RUN_KEYS[spec.kind]
         pairs = [("file", spec.file), ("kind", spec.kind)]
         pairs += [(k, getattr(spec, k)) for k in required]
-        # Optional bias: written unless it is exactly +0.0, the value an
-        # absent key reads back as (so -0.0 survives the round trip too).
-        pairs += [(k, getattr(spec, k)) for k in optional if not _is_plus_zero(getattr(spec, k))]
+        # Optional keys: written unless they hold what an absent key reads back as
+        # (bias exactly +0.0, so -0.0 survives the round trip too; derivative "error").
+        pairs += [(k, getattr(spec, k)) for k in optional if not _is_unset(k, getattr(spec, k))]
         lines += ["", "[[runs]]", *_toml_lines(pairs)]
     for effect in session.effects:
         pairs = [("name", effect.name)]
@@ -1071,7 +1103,7 @@ def session_summary(session: Session) -> dict[str, Any]:
             "duration_s": float(t[-1] - t[0]) if t.size else 0.0,
         }
         for key in (*required, *optional):
-            entry[key] = float(getattr(spec, key))
+            entry[key] = getattr(spec, key) if key in _RUN_WORDS else float(getattr(spec, key))
         runs.append(entry)
     return {
         "path": str(session.path) if session.path is not None else None,

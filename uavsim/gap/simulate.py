@@ -98,6 +98,8 @@ class SessionController:
     """Relay episodes and PD episodes of one batch, selected per episode (``e`` (n,) -> ``u`` (n,)).
 
     ``reading`` is the relay reading of the session's format version (``Session.reading``).
+    When a step run's PD differentiates the measurement (``reads_reference``), the loop
+    passes the reference ``r`` (n,) with the error.
     """
 
     def __init__(self, runs: Sequence[Run], plans: Sequence[Episode], rate_hz: float, reading: int = READING):
@@ -118,15 +120,17 @@ class SessionController:
             self.relay.n_obs[np.array([s.kind == MRFT_RUN for s in specs])] = 1
         self.pd = None
         if self.is_step.any():
-            self.pd = PD(f("kp", 0.0), f("kd", 0.0), f("derivative_filter_hz", 1.0), rate_hz, n)
+            self.pd = PD(f("kp", 0.0), f("kd", 0.0), f("derivative_filter_hz", 1.0), rate_hz, n,
+                         derivative=[s.derivative for s in specs])
+        self.reads_reference = self.pd is not None and self.pd.reads_reference
 
-    def __call__(self, e: np.ndarray) -> np.ndarray:
+    def __call__(self, e: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
         if self.relay is None:
-            return self.pd(e)
+            return self.pd(e, r)
         ur = self.relay(e)
         if self.pd is None:
             return ur
-        return np.where(self.is_step, self.pd(e), ur)
+        return np.where(self.is_step, self.pd(e, r), ur)
 
 
 def batch_effects(

@@ -500,7 +500,9 @@ class LoopBatch:
         Parameters
         ----------
         controller : callable e (n,) -> u (n,)
-            Called once per control sample with the error ``r - y``.
+            Called once per control sample with the error ``r - y``, and the reference
+            ``r`` (n,) too when it has a true ``reads_reference`` (a PD that
+            differentiates the measurement).
         duration_s : float
             Episode length, s; ``T = round(duration_s * rate_hz)`` samples.
         reference : None, (T,), (n, T) or callable t -> (n,)
@@ -526,10 +528,11 @@ class LoopBatch:
         QP, RF = self.state_buffers(T)
         SW = np.zeros((T, n), dtype=bool)
         has_sw = hasattr(controller, "switched")
+        with_r = bool(getattr(controller, "reads_reference", False))
         for k in range(T):
             y_true, y = self.measure(k)
             r = ref(k)
-            u = np.asarray(controller(r - y), dtype=np.float64)
+            u = np.asarray(controller(r - y, r) if with_r else controller(r - y), dtype=np.float64)
             self.actuate(u, k)
             rec[0, k], rec[1, k], rec[2, k], rec[3, k] = r, y, u, y_true
             if has_sw:

@@ -214,7 +214,8 @@ class Flight:
         Parameters
         ----------
         controller : callable e (1,) -> u (1,)
-            Called once per control sample (``uavsim.control`` relays and PD with ``n = 1``).
+            Called once per control sample (``uavsim.control`` relays and PD with ``n = 1``), with
+            the reference ``r`` (1,) too when it has a true ``reads_reference``.
         duration_s : float
         reference : callable t -> r, optional (zero by default)
         trim : bool
@@ -229,11 +230,13 @@ class Flight:
         out = {k: np.empty(T) for k in ("t", "r", "y", "u", "y_true", "voltage_V")}
         sat = np.zeros(T, dtype=bool)
         t_start = self.t
+        with_r = bool(getattr(controller, "reads_reference", False))
         for k in range(T):
             t_rel = k / ap.rate_hz
             y = self.meas.sample(self.sensor_hist[0])
             r = 0.0 if reference is None else float(reference(t_rel))
-            u = float(np.asarray(controller(np.array([r - y])))[0])
+            e = np.array([r - y])
+            u = float(np.asarray(controller(e, np.array([r])) if with_r else controller(e))[0])
             out["t"][k], out["r"][k], out["y"][k], out["u"][k] = t_rel, r, y, u
             out["y_true"][k] = self.true_output()
             out["voltage_V"][k] = self.battery.voltage_V
