@@ -48,7 +48,7 @@ import torch
 
 from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
-from uavsim.learning.decision import decide, fit_temperature, log_cost
+from uavsim.learning.decision import COST_CLIP, decide, fit_temperature
 from uavsim.learning.export import export_model
 from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
@@ -257,6 +257,8 @@ class TrainData:
     K : (N,) true gains or None
     response : (N,) complex fundamental response (``uavsim.data.preprocess``) or None
     response_period : (N,) s or None
+    cost : (N, n) each sample's own cost of every answer (sets with off-centre episodes,
+        ``uavsim.data.costs``) or None: then the cost of answer ``i`` for a sample of class ``l`` is ``J[i, l]``
     """
 
     X: np.ndarray
@@ -267,10 +269,17 @@ class TrainData:
     K: np.ndarray | None = None
     response: np.ndarray | None = None
     response_period: np.ndarray | None = None
+    cost: np.ndarray | None = None
 
     @property
     def n_classes(self) -> int:
         return int(self.J.shape[0])
+
+    def costs(self, idx: np.ndarray) -> np.ndarray:
+        """(m, n) cost of every answer for samples ``idx``: their own cost vectors, else ``J``'s columns."""
+        if self.cost is not None:
+            return self.cost[idx]
+        return self.J[:, self.labels[idx]].T
 
 
 def _attr(v: Any) -> Any:
@@ -303,22 +312,27 @@ def load_training_data(path: str | os.PathLike) -> TrainData:
     n = J.shape[0]
     if X.ndim != 3 or labels.shape != (X.shape[0],) or J.shape != (n, n):
         raise UserError(f"{p}: inconsistent shapes inputs {X.shape}, labels {labels.shape}, J {J.shape}")
-    return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period)
+    cost = None if ds.cost is None else np.asarray(ds.cost, dtype=np.float64)
+    return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period,
+                     cost)
 
 
-def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str, float]:
+def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray, costs: np.ndarray | None = None
+                  ) -> dict[str, float]:
     """Top-1 accuracy and mean / p95 of ``J[pred, true]`` (clipped to [1, 1e3]).
 
     Parameters
     ----------
     pred, true : (N,) int class indices
     J : (n, n) rows predicted, columns true
+    costs : (N, n), optional: each sample's own costs, ``costs[k, pred[k]]`` in place of ``J[pred, true]``
     """
     pred = np.asarray(pred, dtype=np.int64)
     true = np.asarray(true, dtype=np.int64)
     if pred.size == 0:
         return {"n": 0, "top1": float("nan"), "mean_J": float("nan"), "p95_J": float("nan"), "max_J": float("nan")}
-    j = np.clip(J[pred, true], *J_CLIP)
+    j = J[pred, true] if costs is None else np.asarray(costs)[np.arange(pred.size), pred]
+    j = np.clip(np.nan_to_num(j, nan=J_CLIP[1], posinf=J_CLIP[1]), *J_CLIP)
     return {
         "n": int(pred.size),
         "top1": float(np.mean(pred == true)),
@@ -478,16 +492,19 @@ def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainDat
     if X.shape[0] == 0:
         return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
-    logJ = log_cost(data.J)
+    C = data.costs(idx)  # (m, n): the samples' own costs, or J's columns
+    # the decision's cost (``uavsim.learning.decision.log_cost``) per sample
+    logC = np.log(np.clip(np.nan_to_num(C, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP))
+    rows = np.arange(len(idx))
 
     def cost(cls: np.ndarray) -> float:
-        return float(logJ[cls, true].mean())
+        return float(logC[rows, cls].mean())
 
     temps = (fit_temperature(act, true), *TEMPERATURES) if temperature is None else (float(temperature),)
     bayes = {t: decide(act, data.J, temperature=t).cls for t in temps}
     T = min(temps, key=lambda t: cost(bayes[t]))
     pred = {"bayes": bayes[T], "argmax": act.argmax(axis=1).astype(np.int64)}
-    m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
+    m = {d: class_metrics(c, true, data.J, None if data.cost is None else C) for d, c in pred.items()}
     if decision is None:
         decision = "bayes" if cost(pred["bayes"]) <= cost(pred["argmax"]) else "argmax"
     return {**m[decision], **gain_metrics(pred[decision], data, idx),
@@ -521,6 +538,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     tr_idx, va_idx = _split(data.labels, recipe.val_fraction, seed)
     Xtr = torch.from_numpy(data.X[tr_idx])
     ytr = torch.from_numpy(data.labels[tr_idx])
+    # the samples' own cost vectors where the set has them (off-centre episodes), else the loss's J
+    ctr = None if data.cost is None else torch.from_numpy(data.cost[tr_idx].astype(np.float32))
     Xva = torch.from_numpy(data.X[va_idx])
     if device.type == "cuda":
         Xtr, ytr = Xtr.to(device), ytr.to(device)
@@ -574,7 +593,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             idx = perm[b * recipe.batch_size : (b + 1) * recipe.batch_size]
             xb, yb = Xtr[idx].to(device, non_blocking=True), ytr[idx].to(device, non_blocking=True)
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net(xb), yb)
+            cb = None if ctr is None else ctr[idx].to(device, non_blocking=True)
+            loss = loss_fn(net(xb), yb, cb)
             loss.backward()
             opt.step()
             total += float(loss.detach())
