@@ -68,6 +68,8 @@ __all__ = [
 TRAIN_FORMAT = "uavsim-train/1"
 CHECKPOINT = "checkpoint.pt"
 REPORT = "report.json"
+#: what the cross-entropy takes as a sample's class (``TrainRecipe.loss_target``)
+LOSS_TARGETS = ("label", "best")
 #: training curves (loss, validation mean J per epoch) beside the exported network
 CURVES = "training.png"
 
@@ -124,6 +126,11 @@ class TrainRecipe:
         ``paper`` (the paper's J-weighted softmax); ``uavsim.learning.loss``.
     loss_weight : float
         ``[loss] weight``: the expected log J's weight.
+    loss_target : str
+        ``[loss] target``: the class the cross-entropy (and the stratified split, top-1) takes as
+        each sample's: ``label`` (the set's) or ``best`` (the sample's least-cost class, from its
+        own cost vector: sets with off-centre episodes, whose label is the nearest class, not
+        always a good answer).
     source : str
         Path of the TOML file, for messages.
     """
@@ -152,6 +159,7 @@ class TrainRecipe:
     max_minutes: float = 0.0
     loss_kind: str = "expected"
     loss_weight: float = 5.0
+    loss_target: str = "label"
     source: str = ""
 
     def fingerprint(self) -> str:
@@ -159,6 +167,8 @@ class TrainRecipe:
         d = asdict(self)
         for k in ("source", "max_minutes", "threads", "device", "epochs", "patience"):
             d.pop(k)
+        if d["loss_target"] == "label":  # the default: recipes written before it keep their fingerprint
+            d.pop("loss_target")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -167,7 +177,7 @@ _SECTIONS = {
     "net": ("hidden", "dropout", "period_features"),
     "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay"),
     "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
-    "loss": ("kind", "weight"),
+    "loss": ("kind", "weight", "target"),
 }
 #: keys whose field carries their section's name (``[loss] kind`` is ``loss_kind``)
 _PREFIXED = ("loss",)
@@ -231,7 +241,7 @@ def _check_recipe(r: TrainRecipe) -> None:
         ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
         ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0),
         ("period_features", r.period_features >= 0), ("loss_kind", r.loss_kind in LOSS_KINDS),
-        ("loss_weight", r.loss_weight >= 0),
+        ("loss_weight", r.loss_weight >= 0), ("loss_target", r.loss_target in LOSS_TARGETS),
     ]
     for name, ok in checks:
         if not ok:
@@ -315,6 +325,18 @@ def load_training_data(path: str | os.PathLike) -> TrainData:
     cost = None if ds.cost is None else np.asarray(ds.cost, dtype=np.float64)
     return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period,
                      cost)
+
+
+def best_classes(data: TrainData, where: str = "dataset") -> np.ndarray:
+    """Each sample's least-cost class, (N,) int64 (ties: the lowest index); the set must have costs."""
+    if data.cost is None:
+        raise UserError(f"{where}: [loss] target = \"best\" needs a set with per-sample costs "
+                        "(a recipe with randomize.offgrid)")
+    C = np.where(np.isfinite(data.cost), data.cost, np.inf)
+    best = C.argmin(axis=1).astype(np.int64)
+    none = ~np.isfinite(C).any(axis=1)  # no finite cost: keep the set's label
+    best[none] = data.labels[none]
+    return best
 
 
 def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray, costs: np.ndarray | None = None
@@ -527,6 +549,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     out = Path(recipe.out)
     out.mkdir(parents=True, exist_ok=True)
     data = load_training_data(recipe.dataset)
+    if recipe.loss_target == "best":
+        data.labels = best_classes(data, recipe.dataset)
     N, C, L = data.X.shape
     if N < 2 * data.n_classes and N < 10:
         raise UserError(f"{recipe.dataset}: only {N} samples for {data.n_classes} classes")
