@@ -166,3 +166,32 @@ def test_expected_costly_confusion_costs_more_and_kinds_checked():
         JWeightedLoss(cheap, kind="focal")
     with pytest.raises(ValueError, match="weight"):
         JWeightedLoss(cheap, weight=-1.0)
+
+
+def test_per_sample_costs_equal_the_J_loss_at_J_columns():
+    # a set with costs uses them in place of J's columns: the same loss when they are those columns
+    a, labels, J = _case(B=6, n=5, seed=6)
+    costs = J[:, labels].T.clone()
+    for kind in ("expected", "paper"):
+        fn = JWeightedLoss(J, kind=kind, weight=2.0)
+        assert float(fn(a, labels, costs)) == pytest.approx(float(fn(a, labels)), rel=1e-6)
+    ga = a.clone().requires_grad_(True)
+    JWeightedLoss(J, weight=2.0)(ga, labels, costs).backward()
+    gb = a.clone().requires_grad_(True)
+    JWeightedLoss(J, weight=2.0)(gb, labels).backward()
+    assert torch.allclose(ga.grad, gb.grad, rtol=1e-6, atol=1e-9)
+
+
+def test_per_sample_costs_move_the_loss_and_unstable_is_the_clip():
+    # a sample whose own process finds the second class's answer unstable costs more than J says,
+    # and an unstable (inf) or uncomputed (nan) cost is the clip's worst, never a nan loss
+    a = torch.tensor([[1.0, 0.9, -5.0]], dtype=torch.float64)
+    labels = torch.tensor([0])
+    J = torch.tensor([[1.0, 1.0, 1.0], [1.1, 1.0, 1.0], [50.0, 1.0, 1.0]], dtype=torch.float64)
+    fn = JWeightedLoss(J, weight=5.0)
+    own = torch.tensor([[1.0, float("inf"), 50.0]], dtype=torch.float64)
+    assert float(fn(a, labels, own)) > float(fn(a, labels)) + 1.0
+    clipped = torch.tensor([[1.0, 1e3, 50.0]], dtype=torch.float64)
+    assert float(fn(a, labels, own)) == pytest.approx(float(fn(a, labels, clipped)), rel=1e-12)
+    nan = torch.tensor([[1.0, float("nan"), 50.0]], dtype=torch.float64)
+    assert float(fn(a, labels, nan)) == pytest.approx(float(fn(a, labels, clipped)), rel=1e-12)

@@ -92,6 +92,14 @@ def assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict
                 "amplitude": amp[keep], "y0": plan.y0[keep], "tau_obs": tau_obs[keep], "a_n": a_n[keep],
                 "episode": keep, "sim_seed": seed_of[keep], "response_re": resp[keep].real,
                 "response_im": resp[keep].imag, "response_period": resp_period[keep]}
+    cost = None
+    if plan.process is not None:
+        from uavsim.data.costs import COST_SOURCE, sample_costs
+
+        proc = {k: v[keep] for k, v in plan.process.items()}
+        episodes.update({f"process_{k}": v for k, v in proc.items()})
+        episodes["offgrid"] = plan.offgrid[keep]
+        cost = sample_costs(fam, r.episodes.rate_hz, proc, plan.K[keep], resp[keep], resp_period[keep], classes)
     n_div = int(div[:nt].sum())
     attrs = {"loop": fam, "grid_hash": g.hash or "", "grid_version": int(g.version), "beta": plan.beta,
              "h": r.test.h, "relay_reading": READING, "relay_settings": r.test.settings,
@@ -107,9 +115,12 @@ def assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict
              "simulated_s": float(sum(len(c) * d for c, d in zip(plan.chunks, plan.durations, strict=True)))}
     if plan.att_class is not None:
         attrs["att_class"] = int(plan.att_class)
+    if cost is not None:
+        attrs["offgrid"] = float(r.randomize.offgrid)
+        attrs["cost_source"] = COST_SOURCE
     effects = {k: v[keep] for k, v in plan.effect_params.items()}
     raw = {"y": raw_y[keep], "u": raw_u[keep], "length": length[keep]} if keep_raw else None
-    write_dataset(out, episodes, classes, J, attrs, effects=effects, raw=raw)
+    write_dataset(out, episodes, classes, J, attrs, effects=effects, raw=raw, cost=cost)
     return {"file": str(out), "n_episodes": nt, "n_kept": int(len(keep)), "n_diverged": n_div,
             "n_rejected": attrs["n_rejected"], "simulated_s": attrs["simulated_s"]}
 

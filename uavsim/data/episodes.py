@@ -137,8 +137,12 @@ def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NP
 
 
 def chunk_params(plan: Plan, ids: np.ndarray) -> list[LumpedParams]:
-    """The processes of episodes ``ids`` of ``plan``: their class's lumped parameters at their drawn gain."""
-    return [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e])) for e in ids]
+    """The processes of episodes ``ids`` of ``plan``: their class's lumped parameters at their drawn gain
+    (an off-grid plan: the episode's own time constants, ``plan.process``)."""
+    out = [replace(plan.grid.params_of(int(plan.class_index[plan.labels[e]])), K=float(plan.K[e])) for e in ids]
+    if plan.process is not None:
+        out = [replace(p, **{k: float(v[e]) for k, v in plan.process.items()}) for p, e in zip(out, ids, strict=True)]
+    return out
 
 
 def episode_batch(params: list[LumpedParams], plan: Plan, ids: np.ndarray, duration_s: float, seed: int, *,

@@ -13,7 +13,11 @@ labels and everything needed to interpret or regenerate them
   the recipe's plan), ``sim_seed`` (seed of the batch that simulated it),
   ``response_re``, ``response_im`` (N,) the fundamental response ``Y1 / (h U1)``
   and ``response_period`` (N,) s its cycle (``uavsim.data.preprocess``), and
-  ``effects/<i>_<name>/<param>`` for randomized effect parameters;
+  ``effects/<i>_<name>/<param>`` for randomized effect parameters; sets with
+  episodes off the class centres (recipe ``randomize.offgrid``) add each
+  episode's process ``process_T_prop``, ``process_T1``, ``process_tau`` (N,) s,
+  ``offgrid`` (N,) bool and ``cost`` (N, n_classes): each class's table answer's
+  cost on the episode's own process (``uavsim.data.costs``, attr ``cost_source``);
 * group ``classes``: the class table, ``T_prop, T1, tau`` (``T2, tau`` for
   lateral), ``kp, kd, derivative_filter_hz, omega, amplitude, period``
   (n_classes,) from the grid (continuous-time cycle, K = 1, h = 1),
@@ -56,7 +60,9 @@ EPISODE_FIELDS = {
     "episode": np.int64, "sim_seed": np.uint32,
 }
 #: per-episode datasets that older files may lack (read when present)
-OPTIONAL_EPISODE_FIELDS = {"response_re": np.float64, "response_im": np.float64, "response_period": np.float64}
+OPTIONAL_EPISODE_FIELDS = {"response_re": np.float64, "response_im": np.float64, "response_period": np.float64,
+                           "process_T_prop": np.float64, "process_T1": np.float64, "process_tau": np.float64,
+                           "offgrid": np.bool_}
 CLASS_FIELDS = ("kp", "kd", "derivative_filter_hz", "omega", "amplitude", "period")
 CLASS_PARAMS = {"altitude": ("T_prop", "T1", "tau"), "attitude": ("T_prop", "T1", "tau"), "lateral": ("T2", "tau")}
 REQUIRED_ATTRS = ("format", "loop", "grid_hash", "grid_version", "beta", "h", "tau_obs", "a_n", "rate_hz",
@@ -72,7 +78,7 @@ def _attr(v: Any) -> Any:
 
 def write_dataset(path: str | Path, episodes: dict[str, np.ndarray], classes: dict[str, np.ndarray],
                   J: np.ndarray, attrs: dict[str, Any], *, effects: dict[str, np.ndarray] | None = None,
-                  raw: dict[str, np.ndarray] | None = None) -> Path:
+                  raw: dict[str, np.ndarray] | None = None, cost: np.ndarray | None = None) -> Path:
     """Write a complete dataset at ``path`` (via ``path.partial``, renamed at the end).
 
     Parameters
@@ -84,6 +90,7 @@ def write_dataset(path: str | Path, episodes: dict[str, np.ndarray], classes: di
     attrs : every ``REQUIRED_ATTRS`` entry but ``format`` (``complete`` is added last)
     effects : optional ``"<i>_<name>/<param>" -> (N,)`` randomized effect parameters
     raw : optional ``y``, ``u`` (N, T) float32 and ``length`` (N,)
+    cost : optional (N, n_classes) per-sample cost vectors (``uavsim.data.costs``)
 
     The bytes depend only on the arguments (no timestamps), so that the same
     recipe and seed give the same file.
@@ -114,6 +121,11 @@ def write_dataset(path: str | Path, episodes: dict[str, np.ndarray], classes: di
         for k, v in classes.items():
             g.create_dataset(k, data=np.asarray(v, dtype=np.float64), **kw)
         f.create_dataset("J", data=np.asarray(J, dtype=np.float64), **kw)
+        if cost is not None:
+            c = np.asarray(cost, dtype=np.float64)
+            if c.shape != (N, np.shape(J)[0]):
+                raise ValueError(f"cost has shape {c.shape}, expected ({N}, {np.shape(J)[0]})")
+            f.create_dataset("cost", data=c, **kw)
         if effects:
             ge = f.create_group("effects", track_order=True)
             for k, v in effects.items():
@@ -145,6 +157,7 @@ class Dataset:
     attrs : dict of the file attributes (``versions`` parsed from JSON)
     effects : dict name -> (N,) randomized effect parameters
     raw : dict ``y``, ``u`` (N, T), ``length`` (N,), or None
+    cost : (N, n_classes) per-sample cost vectors (sets with off-centre episodes), or None
     """
 
     path: Path
@@ -155,6 +168,7 @@ class Dataset:
     attrs: dict[str, Any]
     effects: dict[str, np.ndarray] = field(default_factory=dict)
     raw: dict[str, np.ndarray] | None = None
+    cost: np.ndarray | None = None
 
     def __getattr__(self, name: str) -> np.ndarray:
         fields = self.__dict__.get("fields", {})
@@ -269,6 +283,11 @@ def open_dataset(path: str | Path) -> Dataset:
                 for k, v in effects.items():
                     if v.shape != (N,):
                         raise _bad(path, f"effects/{k} has shape {v.shape}, expected ({N},)")
+            cost = None
+            if "cost" in f:
+                cost = f["cost"][()]
+                if cost.shape != (N, nc):
+                    raise _bad(path, f"cost has shape {cost.shape}, expected ({N}, {nc})")
             raw = None
             if "raw" in f:
                 raw = {k: f["raw"][k][()] for k in ("y", "u", "length") if k in f["raw"]}
@@ -279,4 +298,4 @@ def open_dataset(path: str | Path) -> Dataset:
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise _bad(path, f"corrupt ({type(exc).__name__}: {exc})") from None
     return Dataset(path=path, inputs=inputs, fields=fields, class_table=table, J=J, attrs=attrs, effects=effects,
-                   raw=raw)
+                   raw=raw, cost=cost)

@@ -6,6 +6,17 @@ output, randomized effect parameters) come from one
 class period and cut into chunks, each with its own simulation seed
 (:func:`chunk_seed`). See :mod:`uavsim.data.generate`.
 
+Off-centre episodes (``[randomize] offgrid``, a share of each class's): the
+process is drawn uniformly (log scale) from the class's cell, the part of the
+loop's box (``uavsim.lumped.params.RANGES``) nearer to that class's centre than
+to any other class's in normalized log coordinates, the distance identification's
+evaluation calls the nearest class. The cells tile the box, so the set covers
+the processes a flight (and ``uavsim evaluate``) meets, each labelled by its
+nearest class; the J of the table is exact only at the centres, so such a set
+stores each sample's own cost vector (:mod:`uavsim.data.costs`). Those draws come
+after every other draw of the generator: the other draws are those of the same
+recipe without ``offgrid``.
+
     plan = make_plan(recipe, load_family_grid(recipe))
     plan.n, plan.chunks[0], plan.sim_seeds[0]
 """
@@ -67,6 +78,8 @@ class Plan:
     sim_seeds: np.ndarray  # (n_chunks,) uint32
     n_train: int = 0
     stage_s: np.ndarray | None = None  # (n_chunks,) s, refinement stage length (recommended settings)
+    process: dict[str, np.ndarray] | None = None  # offgrid: (n,) T_prop, T1, tau of every episode
+    offgrid: np.ndarray | None = None  # offgrid: (n,) bool, the episode is off its class centre
 
     @property
     def n(self) -> int:
@@ -137,9 +150,13 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
             if isinstance(v, tuple):
                 effect_params[f"{i}_{fx.name}/{k}"] = rng.uniform(v[0], v[1], n)
     cls = class_index[labels]
-    a0 = np.asarray(g.amplitude, dtype=float)[cls] * K * h
-    y0 = y0u * recipe.randomize.y0 * a0
     period = np.asarray(g.period, dtype=float)
+    ep_amp, ep_period = np.asarray(g.amplitude, dtype=float)[cls], period[cls]
+    process = off = None
+    if recipe.randomize.offgrid > 0:
+        process, off, ep_amp, ep_period = _offgrid(recipe, g, rng, labels, class_index, beta)
+    a0 = ep_amp * K * h
+    y0 = y0u * recipe.randomize.y0 * a0
     fixed = recipe.test.settings == "fixed"
     # fixed settings: tau_obs no longer than beta allows for the expected cycle ...
     cap = np.array([tau_obs_max(beta, float(period[c]), E.rate_hz) for c in class_index])
@@ -166,15 +183,21 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
                 key = f"{i}_{fx.name}/{k}"
                 effect_params[key] = np.concatenate([effect_params[key], np.full(nc, 0.5 * (v[0] + v[1]))])
     cls = class_index[labels]
-    a0 = np.asarray(g.amplitude, dtype=float)[cls] * K * h
-    # chunks: episodes by class period (stable), so a chunk's length follows similar classes
+    ref_cls = class_index[ref]
+    ep_amp = np.concatenate([ep_amp, np.asarray(g.amplitude, dtype=float)[ref_cls]])
+    ep_period = np.concatenate([ep_period, period[ref_cls]])
+    if process is not None:
+        process = {k: np.concatenate([v, np.asarray(g.params[k], dtype=float)[ref_cls]]) for k, v in process.items()}
+        off = np.concatenate([off, np.zeros(nc, bool)])
+    a0 = ep_amp * K * h
+    # chunks: episodes by (expected) period (stable), so a chunk's length follows similar classes
     chunks = []
     for lo_id, hi_id in ((0, n), (n, n + nc)):
-        order = lo_id + np.argsort(period[cls[lo_id:hi_id]], kind="stable")
+        order = lo_id + np.argsort(ep_period[lo_id:hi_id], kind="stable")
         chunks += [np.sort(order[i:i + E.chunk]) for i in range(0, hi_id - lo_id, E.chunk)]
     stages = 0 if fixed else recipe.test.refinements
     if E.cycles is not None:
-        slowest = np.array([float(period[cls[c]].max()) for c in chunks])
+        slowest = np.array([float(ep_period[c].max()) for c in chunks])
         stage_s = np.ceil(recipe.test.refine_cycles * CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
         main = np.ceil(E.cycles * CYCLE_MARGIN * slowest * E.rate_hz) / E.rate_hz
     else:
@@ -187,4 +210,76 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
     return Plan(recipe=recipe, grid=g, att_class=att_class, class_index=class_index, beta=beta, L=L, labels=labels,
                 K=K, bias=bias, noise_kind=kind, noise_level=level, y0=y0, tau_obs=tau_obs, a_n=a_n, a0=a0,
                 effect_params=effect_params, chunks=chunks, durations=durations, sim_seeds=sim_seeds, n_train=n,
-                stage_s=stage_s)
+                stage_s=stage_s, process=process, offgrid=off)
+
+
+#: candidate points per round of the cell draw (rejection by nearest class)
+_CELL_BATCH = 65536
+
+
+def normalized_log(loop: str, T_prop, T1, tau) -> np.ndarray:
+    """Processes' ``(T_prop, T1, tau)`` as (m, 3) coordinates in [0, 1]: log scale over the loop's box."""
+    from uavsim.lumped.params import RANGES
+
+    keys = ("T_prop", "T1", "tau")
+    lo = np.log([RANGES[loop][k][0] for k in keys])
+    hi = np.log([RANGES[loop][k][1] for k in keys])
+    return (np.log(np.column_stack([np.asarray(v, dtype=float) for v in (T_prop, T1, tau)])) - lo) / (hi - lo)
+
+
+def _offgrid(recipe: Recipe, g, rng: np.random.Generator, labels: np.ndarray, class_index: np.ndarray, beta: float
+             ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """Off-centre processes of the training episodes (module docstring).
+
+    The first ``round(offgrid * per_class)`` episodes of each class are drawn in its cell:
+    points uniform in the normalized log box, in rounds of ``_CELL_BATCH``, each kept by the
+    class it is nearest to until every class has its share. Their expected cycle (noise level,
+    initial output, episode length) is the class's exact one times the describing-function
+    ratio of the drawn process to the class centre.
+
+    Returns the (n,) ``T_prop``, ``T1``, ``tau``, the off-centre mask, and each episode's cycle
+    amplitude and period at K = 1, h = 1.
+    """
+    from uavsim.lumped.frequency import mrft_prediction_batch
+    from uavsim.lumped.params import RANGES
+
+    loop = recipe.loop
+    keys = ("T_prop", "T1", "tau")
+    per = recipe.episodes.per_class
+    share = int(round(recipe.randomize.offgrid * per))
+    centres = normalized_log(loop, *(np.asarray(g.params[k], dtype=float) for k in keys))  # every grid class
+    n = len(labels)
+    off = (np.arange(n) % per) < share
+    lo = np.log([RANGES[loop][k][0] for k in keys])
+    hi = np.log([RANGES[loop][k][1] for k in keys])
+    want = {int(c): share for c in class_index}
+    got: dict[int, list[np.ndarray]] = {c: [] for c in want}
+    for _ in range(10_000):
+        if all(v == 0 for v in want.values()):
+            break
+        u = rng.uniform(0.0, 1.0, (_CELL_BATCH, 3))
+        near = np.argmin(((u[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1), axis=1)
+        for c in want:
+            if want[c]:
+                pts = u[near == c][: want[c]]
+                got[c].append(pts)
+                want[c] -= len(pts)
+    else:
+        raise UserError(f"{recipe.source}: could not fill the classes' cells (a class with no cell in the box?)")
+    P = {k: np.asarray(g.params[k], dtype=float)[class_index[labels]] for k in keys}
+    for j, c in enumerate(class_index):
+        ids = np.flatnonzero(off & (labels == j))
+        pts = np.concatenate(got[int(c)])
+        x = np.exp(lo + pts * (hi - lo))
+        for d, k in enumerate(keys):
+            P[k][ids] = x[:, d]
+    fam = "altitude" if loop == "altitude" else "attitude"
+    centre = {k: np.asarray(g.params[k], dtype=float)[class_index[labels]] for k in keys}
+    w_c, a_c = mrft_prediction_batch(fam, beta, 1.0, K=np.ones(n), **centre)
+    w_p, a_p = mrft_prediction_batch(fam, beta, 1.0, K=np.ones(n), **P)
+    cls = class_index[labels]
+    amp = np.asarray(g.amplitude, dtype=float)[cls]
+    period = np.asarray(g.period, dtype=float)[cls]
+    amp = np.where(off, amp * a_p / a_c, amp)
+    period = np.where(off, period * w_c / w_p, period)
+    return P, off, amp, period

@@ -49,6 +49,8 @@ A recipe that gives ``tau_obs`` or ``a_n`` and no ``settings`` is read as
     K = [0.5, 2.0]               # gain factor range (log-uniform) times the class gain (1)
     bias = 0.5                   # relay bias uniform in [-bias, bias] * h (<= 0.5)
     y0 = 0.5                     # initial output uniform in [-y0, y0] * a0 (a0: the episode's amplitude)
+    offgrid = 0.0                # share of each class's episodes drawn off the class centre, in its cell
+                                 # (uavsim.data.plan); > 0 also stores each sample's cost vector
 
     [noise]
     kinds = ["none", "white", "paper", "coloured", "quantization", "outliers"]
@@ -133,6 +135,7 @@ class RandomizeSpec:
     K: tuple[float, float] = (0.5, 2.0)
     bias: float = 0.5
     y0: float = 0.5
+    offgrid: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -187,7 +190,7 @@ class Recipe:
 _SECTIONS = {
     "test": ("beta", "h", "settings", "refinements", "refine_cycles", "tau_obs", "a_n"),
     "episodes": ("per_class", "cycles", "duration_s", "dt", "rate_hz", "chunk"),
-    "randomize": ("K", "bias", "y0"),
+    "randomize": ("K", "bias", "y0", "offgrid"),
     "noise": ("kinds", "weights", "level"),
     "preprocess": ("cycles", "keep_raw"),
 }
@@ -308,7 +311,10 @@ def parse_recipe(text: str, source: str = "<recipe>", name: str = "recipe") -> R
     if K[0] <= 0:
         raise UserError(f"{src}: randomize.K must be > 0")
     rnd = RandomizeSpec(K=K, bias=_num(src, "randomize.bias", r.get("bias", 0.5), 0, 0.5),
-                        y0=_num(src, "randomize.y0", r.get("y0", 0.5), 0, 10))
+                        y0=_num(src, "randomize.y0", r.get("y0", 0.5), 0, 10),
+                        offgrid=_num(src, "randomize.offgrid", r.get("offgrid", 0.0), 0, 1))
+    if rnd.offgrid > 0 and loop == "lateral":
+        raise UserError(f"{src}: randomize.offgrid is for the inner loops (altitude, attitude), not lateral")
 
     n = _section(src, doc, "noise")
     kinds = n.get("kinds", ["none"])

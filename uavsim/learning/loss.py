@@ -40,6 +40,11 @@ autograd would derive; ``jweighted_cross_entropy_reference`` is the same loss by
 plain autograd, kept as an independent check.
 
     loss = JWeightedLoss(J)(a, labels)          # a (B, n) float, labels (B,) int64
+
+A set whose samples lie off the class centres carries each sample's own cost
+vector (``uavsim.data.costs``): ``loss(a, labels, costs)`` with ``costs`` (B, n)
+uses row ``b`` in place of ``J[:, l_b]`` (both losses; clipped alike), so the
+same loss weighs each sample by what each answer costs its own process.
 """
 
 from __future__ import annotations
@@ -49,7 +54,7 @@ import torch
 from torch import nn
 
 __all__ = ["J_CLIP", "LOSS_KINDS", "JWeightedCE", "jweighted_cross_entropy", "jweighted_cross_entropy_reference",
-           "expected_log_j_loss", "JWeightedLoss"]
+           "expected_log_j_loss", "JWeightedLoss", "clip_costs"]
 
 #: J is clipped to this range as in the authors' code (an unstable pair is 1e3)
 J_CLIP = (1.0, 1e3)
@@ -103,7 +108,8 @@ def jweighted_cross_entropy_reference(a: torch.Tensor, labels: torch.Tensor, J: 
     return nn.functional.cross_entropy(z, labels)
 
 
-def expected_log_j_loss(a: torch.Tensor, labels: torch.Tensor, J: torch.Tensor, weight: float) -> torch.Tensor:
+def expected_log_j_loss(a: torch.Tensor, labels: torch.Tensor, J: torch.Tensor, weight: float, *,
+                        costs: torch.Tensor | None = None) -> torch.Tensor:
     """Cross-entropy plus ``weight`` times the softmax's expected log J, batch mean.
 
     Parameters
@@ -116,6 +122,8 @@ def expected_log_j_loss(a: torch.Tensor, labels: torch.Tensor, J: torch.Tensor, 
         Relative sensitivity, rows predicted, columns true (already clipped to >= 1).
     weight : float
         Weight of the expected log J (0: plain cross-entropy).
+    costs : Tensor (B, n), optional
+        Each sample's own cost of every answer (already clipped to >= 1), in place of ``J[:, labels].T``.
 
     Returns
     -------
@@ -123,7 +131,8 @@ def expected_log_j_loss(a: torch.Tensor, labels: torch.Tensor, J: torch.Tensor, 
     """
     logp = torch.log_softmax(a, dim=1)
     ce = -logp.gather(1, labels[:, None]).squeeze(1)
-    cost = (logp.exp() * torch.log(J[:, labels].T.to(a.dtype))).sum(dim=1)
+    rows = J[:, labels].T if costs is None else costs
+    cost = (logp.exp() * torch.log(rows.to(a.dtype))).sum(dim=1)
     return (ce + weight * cost).mean()
 
 
@@ -152,7 +161,22 @@ class JWeightedLoss(nn.Module):
         self.kind, self.weight = kind, float(weight)
         self.register_buffer("J", Jt.clamp(*J_CLIP))
 
-    def forward(self, a: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    def forward(self, a: torch.Tensor, labels: torch.Tensor, costs: torch.Tensor | None = None) -> torch.Tensor:
+        """Batch loss; ``costs`` (B, n): the samples' own cost vectors (inf / NaN: the clip's worst)."""
+        if costs is not None:
+            costs = clip_costs(costs)
         if self.kind == "paper":
-            return jweighted_cross_entropy(a, labels, self.J)
-        return expected_log_j_loss(a, labels, self.J, self.weight)
+            if costs is None:
+                return jweighted_cross_entropy(a, labels, self.J)
+            # the paper's weights w_i = cost_i per sample: J whose column l_b is the row (per-sample J)
+            return _per_sample_paper(a, labels, costs)
+        return expected_log_j_loss(a, labels, self.J, self.weight, costs=costs)
+
+
+def clip_costs(costs: torch.Tensor) -> torch.Tensor:
+    """Per-sample costs clipped to ``J_CLIP``; inf (unstable) and NaN (not computed) to the clip's worst."""
+    return torch.nan_to_num(costs, nan=J_CLIP[1], posinf=J_CLIP[1]).clamp(*J_CLIP)
+
+
+def _per_sample_paper(a: torch.Tensor, labels: torch.Tensor, costs: torch.Tensor) -> torch.Tensor:
+    return nn.functional.cross_entropy(costs.to(a.dtype) * a, labels)

@@ -48,7 +48,7 @@ import torch
 
 from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
-from uavsim.learning.decision import decide, fit_temperature, log_cost
+from uavsim.learning.decision import COST_CLIP, decide, fit_temperature
 from uavsim.learning.export import export_model
 from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
@@ -68,6 +68,8 @@ __all__ = [
 TRAIN_FORMAT = "uavsim-train/1"
 CHECKPOINT = "checkpoint.pt"
 REPORT = "report.json"
+#: what the cross-entropy takes as a sample's class (``TrainRecipe.loss_target``)
+LOSS_TARGETS = ("label", "best")
 #: training curves (loss, validation mean J per epoch) beside the exported network
 CURVES = "training.png"
 
@@ -124,6 +126,11 @@ class TrainRecipe:
         ``paper`` (the paper's J-weighted softmax); ``uavsim.learning.loss``.
     loss_weight : float
         ``[loss] weight``: the expected log J's weight.
+    loss_target : str
+        ``[loss] target``: the class the cross-entropy (and the stratified split, top-1) takes as
+        each sample's: ``label`` (the set's) or ``best`` (the sample's least-cost class, from its
+        own cost vector: sets with off-centre episodes, whose label is the nearest class, not
+        always a good answer).
     source : str
         Path of the TOML file, for messages.
     """
@@ -152,6 +159,7 @@ class TrainRecipe:
     max_minutes: float = 0.0
     loss_kind: str = "expected"
     loss_weight: float = 5.0
+    loss_target: str = "label"
     source: str = ""
 
     def fingerprint(self) -> str:
@@ -159,6 +167,8 @@ class TrainRecipe:
         d = asdict(self)
         for k in ("source", "max_minutes", "threads", "device", "epochs", "patience"):
             d.pop(k)
+        if d["loss_target"] == "label":  # the default: recipes written before it keep their fingerprint
+            d.pop("loss_target")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -167,7 +177,7 @@ _SECTIONS = {
     "net": ("hidden", "dropout", "period_features"),
     "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay"),
     "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
-    "loss": ("kind", "weight"),
+    "loss": ("kind", "weight", "target"),
 }
 #: keys whose field carries their section's name (``[loss] kind`` is ``loss_kind``)
 _PREFIXED = ("loss",)
@@ -231,7 +241,7 @@ def _check_recipe(r: TrainRecipe) -> None:
         ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
         ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0),
         ("period_features", r.period_features >= 0), ("loss_kind", r.loss_kind in LOSS_KINDS),
-        ("loss_weight", r.loss_weight >= 0),
+        ("loss_weight", r.loss_weight >= 0), ("loss_target", r.loss_target in LOSS_TARGETS),
     ]
     for name, ok in checks:
         if not ok:
@@ -257,6 +267,8 @@ class TrainData:
     K : (N,) true gains or None
     response : (N,) complex fundamental response (``uavsim.data.preprocess``) or None
     response_period : (N,) s or None
+    cost : (N, n) each sample's own cost of every answer (sets with off-centre episodes,
+        ``uavsim.data.costs``) or None: then the cost of answer ``i`` for a sample of class ``l`` is ``J[i, l]``
     """
 
     X: np.ndarray
@@ -267,10 +279,17 @@ class TrainData:
     K: np.ndarray | None = None
     response: np.ndarray | None = None
     response_period: np.ndarray | None = None
+    cost: np.ndarray | None = None
 
     @property
     def n_classes(self) -> int:
         return int(self.J.shape[0])
+
+    def costs(self, idx: np.ndarray) -> np.ndarray:
+        """(m, n) cost of every answer for samples ``idx``: their own cost vectors, else ``J``'s columns."""
+        if self.cost is not None:
+            return self.cost[idx]
+        return self.J[:, self.labels[idx]].T
 
 
 def _attr(v: Any) -> Any:
@@ -303,22 +322,39 @@ def load_training_data(path: str | os.PathLike) -> TrainData:
     n = J.shape[0]
     if X.ndim != 3 or labels.shape != (X.shape[0],) or J.shape != (n, n):
         raise UserError(f"{p}: inconsistent shapes inputs {X.shape}, labels {labels.shape}, J {J.shape}")
-    return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period)
+    cost = None if ds.cost is None else np.asarray(ds.cost, dtype=np.float64)
+    return TrainData(X, labels, J, attrs, classes, np.asarray(ds.K, dtype=np.float64), response, response_period,
+                     cost)
 
 
-def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray) -> dict[str, float]:
+def best_classes(data: TrainData, where: str = "dataset") -> np.ndarray:
+    """Each sample's least-cost class, (N,) int64 (ties: the lowest index); the set must have costs."""
+    if data.cost is None:
+        raise UserError(f"{where}: [loss] target = \"best\" needs a set with per-sample costs "
+                        "(a recipe with randomize.offgrid)")
+    C = np.where(np.isfinite(data.cost), data.cost, np.inf)
+    best = C.argmin(axis=1).astype(np.int64)
+    none = ~np.isfinite(C).any(axis=1)  # no finite cost: keep the set's label
+    best[none] = data.labels[none]
+    return best
+
+
+def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray, costs: np.ndarray | None = None
+                  ) -> dict[str, float]:
     """Top-1 accuracy and mean / p95 of ``J[pred, true]`` (clipped to [1, 1e3]).
 
     Parameters
     ----------
     pred, true : (N,) int class indices
     J : (n, n) rows predicted, columns true
+    costs : (N, n), optional: each sample's own costs, ``costs[k, pred[k]]`` in place of ``J[pred, true]``
     """
     pred = np.asarray(pred, dtype=np.int64)
     true = np.asarray(true, dtype=np.int64)
     if pred.size == 0:
         return {"n": 0, "top1": float("nan"), "mean_J": float("nan"), "p95_J": float("nan"), "max_J": float("nan")}
-    j = np.clip(J[pred, true], *J_CLIP)
+    j = J[pred, true] if costs is None else np.asarray(costs)[np.arange(pred.size), pred]
+    j = np.clip(np.nan_to_num(j, nan=J_CLIP[1], posinf=J_CLIP[1]), *J_CLIP)
     return {
         "n": int(pred.size),
         "top1": float(np.mean(pred == true)),
@@ -478,16 +514,19 @@ def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainDat
     if X.shape[0] == 0:
         return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
-    logJ = log_cost(data.J)
+    C = data.costs(idx)  # (m, n): the samples' own costs, or J's columns
+    # the decision's cost (``uavsim.learning.decision.log_cost``) per sample
+    logC = np.log(np.clip(np.nan_to_num(C, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP))
+    rows = np.arange(len(idx))
 
     def cost(cls: np.ndarray) -> float:
-        return float(logJ[cls, true].mean())
+        return float(logC[rows, cls].mean())
 
     temps = (fit_temperature(act, true), *TEMPERATURES) if temperature is None else (float(temperature),)
     bayes = {t: decide(act, data.J, temperature=t).cls for t in temps}
     T = min(temps, key=lambda t: cost(bayes[t]))
     pred = {"bayes": bayes[T], "argmax": act.argmax(axis=1).astype(np.int64)}
-    m = {d: class_metrics(c, true, data.J) for d, c in pred.items()}
+    m = {d: class_metrics(c, true, data.J, None if data.cost is None else C) for d, c in pred.items()}
     if decision is None:
         decision = "bayes" if cost(pred["bayes"]) <= cost(pred["argmax"]) else "argmax"
     return {**m[decision], **gain_metrics(pred[decision], data, idx),
@@ -510,6 +549,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     out = Path(recipe.out)
     out.mkdir(parents=True, exist_ok=True)
     data = load_training_data(recipe.dataset)
+    if recipe.loss_target == "best":
+        data.labels = best_classes(data, recipe.dataset)
     N, C, L = data.X.shape
     if N < 2 * data.n_classes and N < 10:
         raise UserError(f"{recipe.dataset}: only {N} samples for {data.n_classes} classes")
@@ -521,6 +562,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     tr_idx, va_idx = _split(data.labels, recipe.val_fraction, seed)
     Xtr = torch.from_numpy(data.X[tr_idx])
     ytr = torch.from_numpy(data.labels[tr_idx])
+    # the samples' own cost vectors where the set has them (off-centre episodes), else the loss's J
+    ctr = None if data.cost is None else torch.from_numpy(data.cost[tr_idx].astype(np.float32))
     Xva = torch.from_numpy(data.X[va_idx])
     if device.type == "cuda":
         Xtr, ytr = Xtr.to(device), ytr.to(device)
@@ -574,7 +617,8 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
             idx = perm[b * recipe.batch_size : (b + 1) * recipe.batch_size]
             xb, yb = Xtr[idx].to(device, non_blocking=True), ytr[idx].to(device, non_blocking=True)
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(net(xb), yb)
+            cb = None if ctr is None else ctr[idx].to(device, non_blocking=True)
+            loss = loss_fn(net(xb), yb, cb)
             loss.backward()
             opt.step()
             total += float(loss.detach())

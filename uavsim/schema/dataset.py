@@ -83,6 +83,9 @@ class Randomize(Table):
     K: Pair = Field(default=[0.5, 2.0], description="gain factor range, log-uniform, > 0")
     bias: Annotated[float, Field(ge=0, le=0.5)] = Field(default=0.5, description="relay bias / h, uniform +-")
     y0: Annotated[float, Field(ge=0, le=10)] = Field(default=0.5, description="initial output / a0, uniform +-")
+    offgrid: Annotated[float, Field(ge=0, le=1)] = Field(
+        default=0.0, description="share of each class's episodes drawn off the class centre, in its cell "
+                                 "(stores each sample's cost vector)")
 
     @field_validator("K")
     @classmethod

@@ -48,6 +48,9 @@ class Loss(Table):
     kind: Literal["expected", "paper"] | None = Field(
         default=None, description="expected (cross-entropy + weight x expected log J) or paper; default expected")
     weight: NonNegative | None = Field(default=None, description="the expected log J's weight, default 5")
+    target: Literal["label", "best"] | None = Field(
+        default=None, description="cross-entropy target: label (the set's class, default) or best (each sample's "
+                                  "least-cost class; sets with per-sample costs only)")
 
 
 class TrainingRecipe(Table):
