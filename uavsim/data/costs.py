@@ -50,7 +50,7 @@ def sample_costs(loop: str, rate_hz: float, process: dict[str, np.ndarray], K: n
     A sample with no finite cost (no measured response) gets a row of NaN.
     """
     from uavsim.ident.response import fit_response
-    from uavsim.lumped.sampled import lift, sampled_ise
+    from uavsim.lumped.sampled import pd_step_ise
 
     N = len(K)
     nc = len(table["table_robust_kp"])
@@ -64,20 +64,9 @@ def sample_costs(loop: str, rate_hz: float, process: dict[str, np.ndarray], K: n
     kd = np.asarray(table["table_robust_kd"], dtype=np.float64)[cls] / K_hat
     N_rad = 2.0 * math.pi * np.asarray(table["table_filter_hz"], dtype=np.float64)[cls]
     fam = "altitude" if loop == "altitude" else "attitude"
-    ise = np.full(N * nc, np.inf)
-    for a in range(0, N * nc, batch):
-        s = slice(a, min(a + batch, N * nc))
-        good = np.isfinite(kp[s]) & np.isfinite(kd[s]) & (kp[s] > 0) & (kd[s] >= 0)
-        if not good.any():
-            continue
-        idx = rep[s][good]
-        proc = lift(fam, rate_hz, K=np.asarray(K, dtype=np.float64)[idx],
-                    **{k: np.asarray(process[k], dtype=np.float64)[idx] for k in ("T_prop", "T1", "tau")})
-        with np.errstate(all="ignore"):
-            q = sampled_ise(proc, kp[s][good], kd[s][good], N_rad[s][good])
-        out = np.full(good.size, np.inf)
-        out[good] = np.where(np.isfinite(q) & (q > 0), q, np.inf)
-        ise[s] = out
+    ise = pd_step_ise(fam, rate_hz, kp, kd, N_rad, batch=batch, K=np.asarray(K, dtype=np.float64)[rep],
+                      **{k: np.asarray(process[k], dtype=np.float64)[rep] for k in ("T_prop", "T1", "tau")})
+    ise = np.where(ise > 0, ise, np.inf)
     ise = ise.reshape(N, nc)
     best = ise.min(axis=1, keepdims=True)
     with np.errstate(all="ignore"):

@@ -208,19 +208,12 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
 def _score(fam: str, rate_hz: float, truth: dict[str, np.ndarray], q_opt: np.ndarray, idx: np.ndarray,
            kp, kd, fhz) -> np.ndarray:
     """``J`` of PDs on processes ``idx`` (repeats allowed) against their optima; inf where unstable."""
-    from uavsim.lumped.sampled import lift, sampled_ise
+    from uavsim.lumped.sampled import pd_step_ise
 
     idx = np.asarray(idx, dtype=np.int64)
-    out = np.full(idx.size, _FAIL)
     kp, kd, fhz = (np.broadcast_to(np.asarray(v, dtype=np.float64), idx.shape) for v in (kp, kd, fhz))
-    good = np.isfinite(kp) & np.isfinite(kd) & np.isfinite(fhz) & (kp > 0) & (kd >= 0)
-    if not good.any():
-        return out
-    proc = lift(fam, rate_hz, **{k: v[idx[good]] for k, v in truth.items()})
-    with np.errstate(all="ignore"):
-        q = sampled_ise(proc, kp[good], kd[good], 2 * math.pi * fhz[good])
-    out[good] = np.where(np.isfinite(q), q / q_opt[idx[good]], _FAIL)
-    return out
+    q = pd_step_ise(fam, rate_hz, kp, kd, 2 * math.pi * fhz, **{k: v[idx] for k, v in truth.items()})
+    return np.where(np.isfinite(q), q / q_opt[idx], _FAIL)
 
 
 def summarize(J: np.ndarray, refused: np.ndarray | None = None) -> dict[str, Any]:

@@ -72,7 +72,7 @@ from uavsim.errors import UserError
 from uavsim.lumped.params import loop_family
 
 __all__ = ["SampledProcess", "lift", "loop_matrices", "open_loop", "lyapunov_sum", "sampled_ise", "step_ise_sampled",
-           "delay_split"]
+           "pd_step_ise", "delay_split"]
 
 #: doubling steps at most: 2^64 periods (a loop this close to marginal stability counts as unstable)
 _MAX_DOUBLING = 64
@@ -507,3 +507,29 @@ def step_ise_sampled(family: str, kp, kd, N, rate_hz: float, return_stable: bool
     """``sampled_ise`` of B (controller, process) pairs given by their parameters (as ``lift``)."""
     proc = lift(family, rate_hz, **params)
     return sampled_ise(proc, kp, kd, N, return_stable=return_stable, kick=kick)
+
+
+def pd_step_ise(family: str, rate_hz: float, kp, kd, N, *, batch: int | None = None, **params) -> np.ndarray:
+    """``step_ise_sampled`` of B (PD, process) pairs where a PD may be no PD at all, (B,).
+
+    A pair whose ``kp``, ``kd`` or ``N`` is not finite, or with ``kp <= 0`` or ``kd < 0`` (an
+    answer that could not be computed), and a pair whose loop is unstable, get ``inf``; only
+    the others are lifted. ``params`` are ``lift``'s, (B,) arrays or scalars; ``batch``: pairs
+    per ``sampled_ise`` call (memory), None for one call.
+    """
+    kp, kd, N = (np.asarray(v, dtype=np.float64) for v in (kp, kd, N))
+    B = kp.size
+    out = np.full(B, np.inf)
+    step = B if batch is None else int(batch)
+    for a in range(0, B, max(step, 1)):
+        s = slice(a, min(a + step, B))
+        good = np.isfinite(kp[s]) & np.isfinite(kd[s]) & np.isfinite(N[s]) & (kp[s] > 0) & (kd[s] >= 0)
+        if not good.any():
+            continue
+        idx = np.arange(a, s.stop)[good]
+        proc = lift(family, rate_hz, **{k: (np.asarray(v, dtype=np.float64)[idx] if np.ndim(v) else v)
+                                        for k, v in params.items()})
+        with np.errstate(all="ignore"):
+            q = sampled_ise(proc, kp[idx], kd[idx], N[idx])
+        out[idx] = np.where(np.isfinite(q), q, np.inf)
+    return out
