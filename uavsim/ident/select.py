@@ -198,11 +198,20 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         ``decision`` ``"fitted"``; ``expected_J`` the exp of the chosen class's expected log
         ratio to the best candidate on each fitted model (plus ``grid_weight`` times its grid cost).
     """
+    cls, score, p, _ = _fitted(bundle, activations, response, response_period, beliefs, candidates, grid_weight,
+                               "fitted")
+    return Decision(cls=cls, expected_J=np.exp(score), p=p, decision="fitted")
+
+
+def _fitted(bundle: ModelBundle, activations, response, response_period, beliefs: int, candidates: int,
+            grid_weight: float, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``decide_fitted``'s search: the classes (m,), their costs (m,), the softmax and the grid's expected
+    log J (m, n) it started from."""
     from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
     from uavsim.learning.decision import COST_CLIP
     from uavsim.lumped.sampled import lift, sampled_ise
 
-    p, resp, per, ec = _belief(bundle, activations, response, response_period, "fitted")
+    p, resp, per, ec = _belief(bundle, activations, response, response_period, name)
     cls = np.argmin(ec, axis=1)
     score = np.zeros(p.shape[0])
     for m in range(p.shape[0]):
@@ -236,7 +245,7 @@ def decide_fitted(bundle: ModelBundle, activations: np.ndarray, response, respon
         cost = np.log(np.clip(Q[:, seen] / best[seen], *COST_CLIP)) @ w + grid_weight * ec[m, cand]
         k = int(np.argmin(cost))
         cls[m], score[m] = cand[k], cost[k]
-    return Decision(cls=cls.astype(np.int64), expected_J=np.exp(score), p=p, decision="fitted")
+    return cls.astype(np.int64), score, p, ec
 
 
 def decide_blend(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
@@ -248,13 +257,9 @@ def decide_blend(bundle: ModelBundle, activations: np.ndarray, response, respons
     ``decide_fitted``'s; ``decision`` ``"blend"``, ``expected_J`` the chosen class's under the
     grid's J (as Bayes's).
     """
-    from dataclasses import replace
-
-    from uavsim.learning.decision import expected_cost
-
-    d = decide_fitted(bundle, activations, response, response_period, grid_weight=grid_weight)
-    ec = expected_cost(d.p, bundle.cost)
-    return replace(d, expected_J=np.exp(ec[np.arange(d.cls.size), d.cls]), decision="blend")
+    cls, _, p, ec = _fitted(bundle, activations, response, response_period, FITTED_BELIEFS, FITTED_CANDIDATES,
+                            grid_weight, "blend")
+    return Decision(cls=cls, expected_J=np.exp(ec[np.arange(cls.size), cls]), p=p, decision="blend")
 
 
 def decide_stable(bundle: ModelBundle, activations: np.ndarray, response, response_period, *,
