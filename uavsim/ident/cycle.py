@@ -176,8 +176,8 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     # no cut with a steady pair: the most even pair of cycles, up to IDENT_STEADY_TOL apart (module docstring)
     # (the tolerance passed is the pair's own, so the response cycles are the ones as even as it; the
     # margin covers edges moved by a sample when another control rate is resampled)
-    for stop in sorted(cuts, key=lambda s: (_pair_mismatch(edges, s), -s)):
-        mismatch = _pair_mismatch(edges, stop)
+    for mismatch, neg_stop in sorted((_pair_mismatch(edges, s), -s) for s in cuts):
+        stop = -neg_stop
         if mismatch > IDENT_STEADY_TOL:
             break
         if mismatch <= STEADY_TOL:
