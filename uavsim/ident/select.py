@@ -71,7 +71,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle
-from uavsim.learning.decision import DECISIONS, Decision, decide
+from uavsim.learning.decision import COST_CLIP, DECISIONS, Decision, decide, expected_cost, softmax
 
 __all__ = ["DECISIONS", "IDENT_DECISIONS", "DEFAULT_DECISION", "FITTED_BELIEFS", "FITTED_CANDIDATES",
            "STABLE_PHASE_DEG", "STABLE_SCALES", "SPREAD_LIMITS", "SPREAD_SCALES", "BLEND_GRID_WEIGHT", "Decision",
@@ -114,8 +114,6 @@ def cycle_activations(bundle: ModelBundle, f, *, combine: str | None = None) -> 
     (independent looks), ``"logmean"`` their normalized geometric mean (one look's sharpness),
     ``"mean"`` their mean.
     """
-    from uavsim.learning.decision import softmax
-
     looks = getattr(f, "looks", None)
     if looks is None or len(looks) < 2:
         return bundle.predictor.activations(f.x)
@@ -162,8 +160,6 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
 def _belief(bundle: ModelBundle, activations, response, response_period, name: str):
     """The softmax (m, n), responses (m,), periods (m,) and expected costs (m, n) a decision over
     fitted models starts from; a one-line error without the cost matrix or with mismatched inputs."""
-    from uavsim.learning.decision import expected_cost, softmax
-
     if bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the {name} decision "
                         "needs: retrain, or decide by argmax")
@@ -208,7 +204,6 @@ def _fitted(bundle: ModelBundle, activations, response, response_period, beliefs
     """``decide_fitted``'s search: the classes (m,), their costs (m,), the softmax and the grid's expected
     log J (m, n) it started from."""
     from uavsim.ident.gains import fitted_model, model_loop_params, table_gains
-    from uavsim.learning.decision import COST_CLIP
     from uavsim.lumped.sampled import lift, sampled_ise
 
     p, resp, per, ec = _belief(bundle, activations, response, response_period, name)
