@@ -43,7 +43,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 
-__all__ = ["DECISIONS", "COST_CLIP", "TEMPERATURE_RANGE", "Decision", "softmax", "log_cost", "expected_cost",
+__all__ = ["DECISIONS", "COST_CLIP", "TEMPERATURE_RANGE", "Decision", "softmax", "clip_cost", "log_cost", "expected_cost",
            "fit_temperature", "decide"]
 
 #: class decisions: least expected J (``bayes``), most likely class (``argmax``)
@@ -88,6 +88,11 @@ def softmax(activations: np.ndarray, temperature: float = 1.0) -> np.ndarray:
     return e / e.sum(axis=1, keepdims=True)
 
 
+def clip_cost(cost) -> np.ndarray:
+    """Costs (relative ISE, any shape) clipped to ``COST_CLIP``; inf (unstable) and nan (not computed) are the worst."""
+    return np.clip(np.nan_to_num(np.asarray(cost, dtype=np.float64), nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP)
+
+
 def log_cost(J: np.ndarray, n: int | None = None) -> np.ndarray:
     """``log`` of ``J`` clipped to ``COST_CLIP``, (n, n): the cost the decision weighs.
 
@@ -97,7 +102,7 @@ def log_cost(J: np.ndarray, n: int | None = None) -> np.ndarray:
     J = np.asarray(J, dtype=np.float64)
     if J.ndim != 2 or J.shape[0] != J.shape[1] or (n is not None and J.shape[0] != n):
         raise UserError(f"cost matrix J has shape {J.shape}, the network has {n} classes")
-    return np.log(np.clip(np.nan_to_num(J, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP))
+    return np.log(clip_cost(J))
 
 
 def expected_cost(p: np.ndarray, J: np.ndarray) -> np.ndarray:

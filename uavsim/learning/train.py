@@ -48,9 +48,9 @@ import torch
 
 from uavsim.cpus import available_cpus
 from uavsim.errors import UserError
-from uavsim.learning.decision import COST_CLIP, decide, fit_temperature
+from uavsim.learning.decision import clip_cost, decide, fit_temperature
 from uavsim.learning.export import export_model
-from uavsim.learning.loss import J_CLIP, LOSS_KINDS, JWeightedLoss
+from uavsim.learning.loss import LOSS_KINDS, JWeightedLoss
 from uavsim.learning.model import IdentNet, NetConfig
 
 __all__ = [
@@ -354,7 +354,7 @@ def class_metrics(pred: np.ndarray, true: np.ndarray, J: np.ndarray, costs: np.n
     if pred.size == 0:
         return {"n": 0, "top1": float("nan"), "mean_J": float("nan"), "p95_J": float("nan"), "max_J": float("nan")}
     j = J[pred, true] if costs is None else np.asarray(costs)[np.arange(pred.size), pred]
-    j = np.clip(np.nan_to_num(j, nan=J_CLIP[1], posinf=J_CLIP[1]), *J_CLIP)
+    j = clip_cost(j)
     return {
         "n": int(pred.size),
         "top1": float(np.mean(pred == true)),
@@ -515,8 +515,7 @@ def _val_metrics(net: IdentNet, X: torch.Tensor, idx: np.ndarray, data: TrainDat
         return class_metrics(np.zeros(0, np.int64), true, data.J)
     act = _activations(net, X, device)
     C = data.costs(idx)  # (m, n): the samples' own costs, or J's columns
-    # the decision's cost (``uavsim.learning.decision.log_cost``) per sample
-    logC = np.log(np.clip(np.nan_to_num(C, nan=COST_CLIP[1], posinf=COST_CLIP[1]), *COST_CLIP))
+    logC = np.log(clip_cost(C))  # the decision's cost per sample (``log_cost``'s, row by row)
     rows = np.arange(len(idx))
 
     def cost(cls: np.ndarray) -> float:
