@@ -8,11 +8,12 @@ import pytest
 
 from uavsim.data.generate import generate
 from uavsim.data.h5 import open_dataset
-from uavsim.data.plan import load_family_grid, make_plan, normalized_log
+from uavsim.data.plan import load_family_grid, make_plan
 from uavsim.data.recipe import load_recipe, parse_recipe
 from uavsim.errors import UserError
 from uavsim.ident.response import fit_response
 from uavsim.learning.train import load_training_data
+from uavsim.lumped.params import box_coordinates
 from uavsim.lumped.sampled import step_ise_sampled
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,8 +54,8 @@ def test_plan_draws_off_centre_processes_in_their_cells_and_moves_no_other_draw(
         assert np.array_equal(p.process[k][~off], centre[k][~off])
         assert not np.any(p.process[k][off] == centre[k][off])
     # each drawn process is nearer its own class than any other class of the whole grid
-    P = normalized_log(r.loop, *(p.process[k] for k in ("T_prop", "T1", "tau")))
-    C = normalized_log(r.loop, *(np.asarray(g.params[k], float) for k in ("T_prop", "T1", "tau")))
+    P = box_coordinates(r.loop, p.process)
+    C = box_coordinates(r.loop, g.params)
     near = np.argmin(((P[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
     assert np.array_equal(near, cls)
     assert np.all((P >= 0) & (P <= 1))

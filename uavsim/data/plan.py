@@ -217,16 +217,6 @@ def make_plan(recipe: Recipe, grid, att_class: int | None = None) -> Plan:
 _CELL_BATCH = 65536
 
 
-def normalized_log(loop: str, T_prop, T1, tau) -> np.ndarray:
-    """Processes' ``(T_prop, T1, tau)`` as (m, 3) coordinates in [0, 1]: log scale over the loop's box."""
-    from uavsim.lumped.params import RANGES
-
-    keys = ("T_prop", "T1", "tau")
-    lo = np.log([RANGES[loop][k][0] for k in keys])
-    hi = np.log([RANGES[loop][k][1] for k in keys])
-    return (np.log(np.column_stack([np.asarray(v, dtype=float) for v in (T_prop, T1, tau)])) - lo) / (hi - lo)
-
-
 def _offgrid(recipe: Recipe, g, rng: np.random.Generator, labels: np.ndarray, class_index: np.ndarray, beta: float
              ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Off-centre processes of the training episodes (module docstring).
@@ -241,24 +231,22 @@ def _offgrid(recipe: Recipe, g, rng: np.random.Generator, labels: np.ndarray, cl
     amplitude and period at K = 1, h = 1.
     """
     from uavsim.lumped.frequency import mrft_prediction_batch
-    from uavsim.lumped.params import RANGES
+    from uavsim.lumped.params import BOX_KEYS, box_coordinates, from_box_coordinates, nearest_centre
 
     loop = recipe.loop
-    keys = ("T_prop", "T1", "tau")
+    keys = BOX_KEYS[loop]
     per = recipe.episodes.per_class
     share = int(round(recipe.randomize.offgrid * per))
-    centres = normalized_log(loop, *(np.asarray(g.params[k], dtype=float) for k in keys))  # every grid class
+    centres = box_coordinates(loop, g.params)  # every grid class
     n = len(labels)
     off = (np.arange(n) % per) < share
-    lo = np.log([RANGES[loop][k][0] for k in keys])
-    hi = np.log([RANGES[loop][k][1] for k in keys])
     want = {int(c): share for c in class_index}
     got: dict[int, list[np.ndarray]] = {c: [] for c in want}
     for _ in range(10_000):
         if all(v == 0 for v in want.values()):
             break
         u = rng.uniform(0.0, 1.0, (_CELL_BATCH, 3))
-        near = np.argmin(((u[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1), axis=1)
+        near = nearest_centre(u, centres)
         for c in want:
             if want[c]:
                 pts = u[near == c][: want[c]]
@@ -269,10 +257,8 @@ def _offgrid(recipe: Recipe, g, rng: np.random.Generator, labels: np.ndarray, cl
     P = {k: np.asarray(g.params[k], dtype=float)[class_index[labels]] for k in keys}
     for j, c in enumerate(class_index):
         ids = np.flatnonzero(off & (labels == j))
-        pts = np.concatenate(got[int(c)])
-        x = np.exp(lo + pts * (hi - lo))
-        for d, k in enumerate(keys):
-            P[k][ids] = x[:, d]
+        for k, v in from_box_coordinates(loop, np.concatenate(got[int(c)])).items():
+            P[k][ids] = v
     fam = "altitude" if loop == "altitude" else "attitude"
     centre = {k: np.asarray(g.params[k], dtype=float)[class_index[labels]] for k in keys}
     w_c, a_c = mrft_prediction_batch(fam, beta, 1.0, K=np.ones(n), **centre)

@@ -74,7 +74,7 @@ from uavsim.ident.guard import guard_scale
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle
 from uavsim.learning.decision import decide
-from uavsim.lumped.params import RANGES, LumpedParams
+from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
 __all__ = ["LEVELS", "DETUNE", "GOALS", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
            "markdown"]
@@ -280,12 +280,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
 
 def _nearest(bundle: ModelBundle, truth: dict[str, np.ndarray]) -> np.ndarray:
     fam = bundle.loop
-    keys = ("T2", "tau") if fam == "lateral" else ("T_prop", "T1", "tau")
-    lo = np.log([RANGES[fam][k][0] for k in keys])
-    hi = np.log([RANGES[fam][k][1] for k in keys])
-    P = (np.log(np.column_stack([truth[k] for k in keys])) - lo) / (hi - lo)
-    C = (np.log(np.column_stack([bundle.column(k) for k in keys])) - lo) / (hi - lo)
-    return np.argmin(((P[:, None, :] - C[None, :, :]) ** 2).sum(axis=-1), axis=1)
+    return nearest_centre(box_coordinates(fam, truth), box_coordinates(fam, {k: bundle.column(k) for k in BOX_KEYS[fam]}))
 
 
 def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarray, ids: dict[str, Any],

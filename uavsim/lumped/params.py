@@ -19,6 +19,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, replace
 
+import numpy as np
+
 from uavsim.errors import UserError
 
 INNER_LOOPS = ("altitude", "roll", "pitch")
@@ -31,6 +33,34 @@ RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "altitude": {"T_prop": (0.015, 0.3), "T1": (0.2, 2.0), "tau": (0.0005, 0.06)},
     "lateral": {"T2": (0.2, 6.0), "tau": (0.0005, 0.15)},
 }
+
+#: the parameters that place a process in its family's box (the gain K scales out)
+BOX_KEYS: dict[str, tuple[str, ...]] = {"attitude": ("T_prop", "T1", "tau"), "altitude": ("T_prop", "T1", "tau"),
+                                        "lateral": ("T2", "tau")}
+
+
+def _log_box(family: str) -> tuple[np.ndarray, np.ndarray]:
+    keys = BOX_KEYS[family]
+    return np.log([RANGES[family][k][0] for k in keys]), np.log([RANGES[family][k][1] for k in keys])
+
+
+def box_coordinates(family: str, values) -> np.ndarray:
+    """Processes as (m, k) coordinates in [0, 1]: each of ``BOX_KEYS[family]`` of ``values`` (a mapping of
+    (m,) arrays) on log scale over ``RANGES[family]``: where "nearest class" is measured."""
+    lo, hi = _log_box(family)
+    return (np.log(np.column_stack([np.asarray(values[k], dtype=float) for k in BOX_KEYS[family]])) - lo) / (hi - lo)
+
+
+def from_box_coordinates(family: str, u: np.ndarray) -> dict[str, np.ndarray]:
+    """``box_coordinates``'s inverse: (m, k) coordinates to ``BOX_KEYS[family]`` -> (m,) arrays."""
+    lo, hi = _log_box(family)
+    x = np.exp(lo + u * (hi - lo))
+    return {k: x[:, d] for d, k in enumerate(BOX_KEYS[family])}
+
+
+def nearest_centre(points: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Index (m,) of the nearest of ``centres`` (c, k) to each of ``points`` (m, k), box coordinates."""
+    return np.argmin(((points[:, None, :] - centres[None, :, :]) ** 2).sum(axis=-1), axis=1)
 
 
 def loop_family(loop: str) -> str:
