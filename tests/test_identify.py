@@ -165,6 +165,36 @@ def test_refuses_other_beta(setup, tmp_path):
         identify_session(_variant(setup, tmp_path, "beta", beta), models=setup["model"])
 
 
+def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
+    """A session with a second NP-MRFT run at beta -0.3 of the same process: identification with
+    ``second_run`` answers the same class, says which run gave the second point and its frequency
+    (the slower cycle), and refuses a missing run or one at the network's beta in one line."""
+    from uavsim.control.relay import NPMRFT
+    from uavsim.ident.twopoint import SECOND_BETA
+    from uavsim.sim.runner import LoopBatch
+    from uavsim.sim.sessions import relay_session
+
+    g = setup["grid"]
+    p = replace(g.params_of(CLASSES[TRUE]), K=K_TRUE)
+    lb = LoopBatch([p], dt=0.0005, rate_hz=200.0, seed=6)
+    res = lb.run(NPMRFT(SECOND_BETA, H, 0.01, 0.0, 200.0, 1, bias=0.1), duration_s=12.0)
+    second = relay_session(res, 0, p, beta=SECOND_BETA, h=H, rate_hz=200.0, tau_obs=0.01, a_n=0.0, bias=0.1,
+                           with_model=False, file="relay_b030.csv").runs[0]
+    s = read_session(setup["session"])
+    path = write_session(replace(s, runs=[*s.runs, second]), tmp_path / "two")
+    one = identify_session(path, models=setup["model"])
+    two = identify_session(path, models=setup["model"], second_run="relay_b030.csv")
+    assert "second_run" not in one and one["run"] == "relay.csv"
+    assert two["class"] == one["class"] == TRUE
+    sr = two["second_run"]
+    assert sr["run"] == "relay_b030.csv" and sr["beta"] == SECOND_BETA and sr["n_cycles"] >= 1
+    assert sr["omega"] < two["response"]["omega"]
+    with pytest.raises(UserError, match="no np-mrft/mrft run with file 'nope.csv'"):
+        identify_session(path, models=setup["model"], second_run="nope.csv")
+    with pytest.raises(UserError, match="another beta"):
+        identify_session(path, models=setup["model"], second_run="relay.csv")
+
+
 def test_missing_model_is_user_error(setup, tmp_path):
     with pytest.raises(UserError, match="no trained altitude network"):
         identify_session(setup["session"], models=tmp_path)

@@ -50,6 +50,9 @@ def register(subparsers) -> None:
     p.add_argument("--guard", action="store_true",
                    help="back the table's PD off where the identified model with 5 degrees more lag needs it "
                         "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default off")
+    p.add_argument("--second-run", metavar="FILE",
+                   help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "
+                        "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -62,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     from uavsim.ident.session import identify_session, write_model
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
-                           optimum=args.optimum, decision=args.decision, guard=args.guard)
+                           optimum=args.optimum, decision=args.decision, guard=args.guard,
+                           second_run=args.second_run)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)

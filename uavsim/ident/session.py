@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures
-from uavsim.errors import UserError
+from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
@@ -61,7 +61,8 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
                    attitude: dict[str, float] | None = None, decision: str | None = None,
-                   guard: bool = False, combine: str | None = None) -> dict[str, Any]:
+                   guard: bool = False, combine: str | None = None, second: CycleFeatures | None = None
+                   ) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -87,6 +88,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     combine : str or None
         How the beliefs of several looks at the run combine, where ``f`` holds them
         (``uavsim.ident.select.cycle_activations``); None: ``DEFAULT_LOOK_COMBINE``.
+    second : CycleFeatures or None
+        A second relay run's cycle at another ``beta`` (``uavsim.ident.twopoint``): the belief is
+        weighed by how well each class fits both measured points before the decision.
 
     Returns
     -------
@@ -100,6 +104,10 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     act = cycle_activations(bundle, f, combine=combine)
+    if second is not None:  # the belief weighed by how each class fits both measured points
+        from uavsim.ident.twopoint import two_point_activations
+
+        act = two_point_activations(bundle, act, f, second)
     dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
                        response_period=np.array([f.response_period]), response_spread=np.array([f.response_spread]))
     c = int(dec.cls[0])
@@ -163,19 +171,34 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
                     beta: float | None = None, optimum: str = "never",
                     attitude: dict[str, float] | None = None, decision: str | None = None,
-                    guard: bool = False) -> dict[str, Any]:
+                    guard: bool = False, second: CycleFeatures | None = None) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
-    ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's).
+    ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's);
+    ``second``: a second run's cycle (``second_cycle``), as ``identify_cycle`` takes it.
     """
     f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
-    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision, guard=guard)
+    return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision, guard=guard,
+                          second=second)
+
+
+def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float,
+                 cycles: int = 1) -> CycleFeatures:
+    """A second relay run's cycle, for its measured point only (``uavsim.ident.twopoint``): any cycle length.
+
+    Raises ``NoOscillation`` where the run holds no usable oscillation.
+    """
+    from uavsim.data.preprocess import features
+
+    return features(np.asarray(y, dtype=np.float64), np.asarray(u, dtype=np.float64), rate_hz, h, bias, len(y),
+                    cycles=cycles)
 
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
-                     optimum: str = "never", decision: str | None = None, guard: bool = False) -> dict[str, Any]:
+                     optimum: str = "never", decision: str | None = None, guard: bool = False,
+                     second_run: str | None = None) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -194,6 +217,9 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         Lateral only: the flight's attitude loop when known (``identify_cycle``).
     optimum, decision, guard : str, str, bool
         ``identify_cycle``'s.
+    second_run : str or None
+        File name of a second relay run of the session at another ``beta`` (``-0.3``:
+        ``uavsim.ident.twopoint.SECOND_BETA``) whose measured point weighs the belief; None: one run.
 
     Returns
     -------
@@ -224,11 +250,28 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} holds a {b.loop} network, the session is {s.loop}")
     if fam == "lateral" and b.att_class not in (None, attitude_class):
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
+    second = None
+    if second_run is not None:
+        r2 = next((x for x in s.runs if x.spec.file == second_run and x.spec.kind in ("np-mrft", "mrft")), None)
+        if r2 is None:
+            raise UserError(f"session {path}: no np-mrft/mrft run with file {second_run!r} for the second point")
+        if r2.spec.beta is None or abs(float(r2.spec.beta) - b.rule.beta) < 1e-6:
+            raise UserError(f"session {path}: the second run {second_run} must be at another beta than the "
+                            f"network's ({b.rule.beta:g}), got {r2.spec.beta}")
+        try:
+            second = second_cycle(r2.data.y, r2.data.u, rate_hz=s.control_rate_hz, h=float(r2.spec.h),
+                                  bias=float(r2.spec.bias or 0.0), cycles=b.cycles)
+        except NoOscillation as exc:
+            raise UserError(f"session {path}: second run {second_run}: {exc}") from None
     ans = identify_arrays(r.data.y, r.data.u, rate_hz=s.control_rate_hz, h=float(r.spec.h),
                           bias=float(r.spec.bias or 0.0), bundle=b, beta=r.spec.beta, optimum=optimum,
-                          attitude=attitude, decision=decision, guard=guard)
+                          attitude=attitude, decision=decision, guard=guard, second=second)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
+    if second is not None:
+        ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta),
+                             "gain": abs(second.response), "phase_deg": math.degrees(np.angle(second.response)),
+                             "omega": 2 * math.pi / second.response_period, "n_cycles": second.response_cycles}
     ans["model_dir"] = str(d)
     ans["had_model"] = s.model is not None
     # NP-MRFT a_n is a noise amplitude (2 std for Gaussian noise, uavsim.noise.models)

@@ -1,0 +1,135 @@
+"""A second relay run at another ``beta``: a second measured point to weigh the network's belief by.
+
+One NP-MRFT run measures the process's response at one frequency, ``G(j w1)``
+(``CycleFeatures.response``, the hold removed). Every class fits that point exactly
+with its own lags and a gain and delay of its own (``uavsim.ident.response.fit_response``),
+so the point alone does not tell the classes apart: the cycle's shape, which noise
+blurs, does. A second run at another ``beta`` (``SECOND_BETA``, ``-0.3``: a slower,
+larger cycle, so a cleaner one for the same sensor) measures ``G(j w2)``. A class
+with a gain and a delay fitted to both points by weighted least squares (``log |G|``
+and the phase are linear in ``log K`` and ``tau``) leaves a residual where its lags
+are not the process's, and a class is its delay too: a fit that needs a delay far
+from the class's own says the class is not the process.
+
+The belief becomes ``p(c) exp(-chi2(c) / 2)``, with ``chi2`` the fit's weighted squared
+residual plus the squared distance of the fitted delay from the class's in
+``log(tau + TAU_LOG_OFFSET_S)`` over ``TAU_LOG_SIGMA``. Each point's uncertainty is its
+cycles' own spread (``CycleFeatures.response_spread`` over the root of their count),
+floored (``SIGMA_FLOOR``), and the second's has ``EXTRAPOLATION_SIGMA`` added: a class
+fitted where the network's run measured may miss a point elsewhere by that much and
+still be the nearest class. The new belief goes to the loop's decision as activations
+(``T log p``), so every decision of ``uavsim.ident.select`` runs on it unchanged; the
+gain estimate and the fitted models stay those of the network's run.
+
+On development seeds 11-13 (300 off-grid processes each, noise 0-20 %:
+docs/results/identification.md) this lowered the inner loops' median J and p95 against
+one run; the same weighting from the first point alone did not.
+
+    from uavsim.ident.twopoint import two_point_activations
+    act2 = two_point_activations(bundle, act, f1, f2)   # f1: the network's run, f2: the run at SECOND_BETA
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from uavsim.data.preprocess import CycleFeatures, process_response
+from uavsim.ident.bundle import ModelBundle
+from uavsim.learning.decision import softmax
+
+__all__ = ["SECOND_BETA", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA", "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S",
+           "class_response", "two_point_fit", "two_point_activations"]
+
+#: the second run's MRFT parameter a user flies
+SECOND_BETA = -0.3
+#: floors of each point's measured uncertainty: std of log |G| and of its phase (deg)
+SIGMA_FLOOR = (0.01, 0.5)
+#: added (in quadrature) to every point after the first: log |G|, phase (deg)
+EXTRAPOLATION_SIGMA = (0.05, 3.0)
+#: std of the fitted delay's distance from the class's, in log(tau + TAU_LOG_OFFSET_S)
+TAU_LOG_SIGMA = 0.5
+#: s, keeps the log of the box's sub-millisecond delays from dominating
+TAU_LOG_OFFSET_S = 0.001
+
+
+def class_response(bundle: ModelBundle, cls, omega) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude and unwrapped phase (rad) of the classes' unit-gain, delay-free models at ``omega``.
+
+    ``cls`` (n,), ``omega`` (k,) rad/s; returns two (n, k) arrays. Inner loops:
+    ``1 / (jw (T_prop jw + 1)(T1 jw + 1))``; lateral: ``T_att(jw) / (jw (T2 jw + 1))`` over the
+    bundle's closed attitude loop (``uavsim.ident.response.attitude_loop_response``).
+    """
+    cls = np.asarray(cls, dtype=np.int64)
+    w = np.atleast_1d(np.asarray(omega, dtype=np.float64))[None, :]
+    c = bundle.column
+    if bundle.loop == "lateral":
+        from uavsim.ident.response import attitude_loop_response
+
+        T2 = c("T2")[cls][:, None]
+        Tatt = attitude_loop_response(w[0], dict(bundle.attitude or {}))[None, :]
+        mag = np.abs(Tatt) / (w * np.hypot(1.0, w * T2))
+        return mag, np.broadcast_to(-0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt), mag.shape)
+    Tp, T1 = c("T_prop")[cls][:, None], c("T1")[cls][:, None]
+    mag = 1.0 / (w * np.hypot(1.0, w * Tp) * np.hypot(1.0, w * T1))
+    return mag, -0.5 * np.pi - np.arctan(w * Tp) - np.arctan(w * T1)
+
+
+def _sigmas(f: CycleFeatures, extra: tuple[float, float]) -> tuple[float, float]:
+    """A point's uncertainty (log gain, phase rad): its cycles' spread over the root of their count,
+    floored (``SIGMA_FLOOR``), with ``extra`` (log gain, deg) added in quadrature."""
+    n = max(int(f.response_cycles), 1)
+    sg, sp = (float(s) if np.isfinite(s) else 0.0 for s in f.response_spread)
+    sg, sp = max(sg / math.sqrt(n), SIGMA_FLOOR[0]), max(sp / math.sqrt(n), math.radians(SIGMA_FLOOR[1]))
+    return math.hypot(sg, extra[0]), math.hypot(sp, math.radians(extra[1]))
+
+
+def two_point_fit(bundle: ModelBundle, cls, points: list[CycleFeatures]) -> dict[str, np.ndarray]:
+    """Each class's gain and delay fitted to every measured point by weighted least squares.
+
+    Parameters
+    ----------
+    cls : (n,) int
+        Classes.
+    points : list of CycleFeatures
+        The runs' cycles, the network's first (each with its ``response`` and ``response_period``).
+
+    Returns
+    -------
+    dict of (n,) arrays: ``K``, ``tau`` (s, >= 0) and ``chi2`` (the weighted squared residual; a
+    class that needs a negative delay is fitted at 0 and keeps that residual).
+    """
+    cls = np.asarray(cls, dtype=np.int64)
+    w = np.array([2.0 * math.pi / f.response_period for f in points])
+    G = np.array([complex(process_response(f.response, f.response_period, rate_hz=bundle.input_rate_hz))
+                  for f in points])
+    sg, sp = (np.array(s) for s in zip(*(_sigmas(f, EXTRAPOLATION_SIGMA if k else (0.0, 0.0))
+                                         for k, f in enumerate(points)), strict=True))
+    mag0, ph0 = class_response(bundle, cls, w)
+    dg = np.log(np.abs(G))[None, :] - np.log(mag0)
+    wg = 1.0 / sg**2
+    logK = (dg * wg).sum(axis=1) / wg.sum()
+    # each measured phase on the branch nearest the class's model with its own delay
+    ref = ph0 - w[None, :] * bundle.column("tau")[cls][:, None]
+    d = ph0 - (ref + (np.angle(G)[None, :] - ref + np.pi) % (2.0 * np.pi) - np.pi)  # w tau for an exact fit
+    wp = 1.0 / sp**2
+    tau = np.maximum((d * w * wp).sum(axis=1) / (w**2 * wp).sum(), 0.0)
+    chi2 = (((dg - logK[:, None]) ** 2) * wg).sum(axis=1) + (((d - w[None, :] * tau[:, None]) ** 2) * wp).sum(axis=1)
+    return {"K": np.exp(logK), "tau": tau, "chi2": chi2}
+
+
+def two_point_activations(bundle: ModelBundle, activations: np.ndarray, first: CycleFeatures,
+                          second: CycleFeatures) -> np.ndarray:
+    """The network's activations (1, n) with the belief weighed by both points' fit (module docstring).
+
+    Returns activations whose softmax at the bundle's temperature is ``p L / sum(p L)``.
+    """
+    p = softmax(activations, bundle.temperature)
+    n = p.shape[1]
+    fit = two_point_fit(bundle, np.arange(n), [first, second])
+    d = np.log(fit["tau"] + TAU_LOG_OFFSET_S) - np.log(bundle.column("tau") + TAU_LOG_OFFSET_S)
+    chi2 = fit["chi2"] + (d / TAU_LOG_SIGMA) ** 2
+    with np.errstate(divide="ignore"):
+        logp = np.log(p) - 0.5 * chi2[None, :]
+    return bundle.temperature * (logp - logp.max(axis=1, keepdims=True))
