@@ -113,3 +113,21 @@ def test_cli_runs_blas_on_one_thread_unless_told(monkeypatch, given, expected):
     with pytest.raises(UserError):
         args.func(args)
     assert os.environ["OPENBLAS_NUM_THREADS"] == expected
+
+
+def test_cli_second_run(three_model, tmp_path):  # noqa: F811 (fixture)
+    """``--second-beta``: every process also flies a relay run at that beta (the same noise in output
+    units), and the answer weighs its belief by both measured points; a beta outside (-1, 1) is a
+    one-line error."""
+    _, model, _ = three_model
+    cmd = [sys.executable, "-m", "uavsim.cli.main", "evaluate", "--loop", "altitude", "--models", str(model),
+           "--recipe", str(ROOT / "datasets" / "small.toml"), "--n", "3", "--seed", "4", "--json"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res = subprocess.run(cmd + ["--second-beta", "-0.3"], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["spec"]["second_beta"] == -0.3 and out["second_run"]["beta"] == -0.3
+    answered = out["rows"]["all"]["answer"]["n"] - out["rows"]["all"]["answer"]["refused"]
+    assert 1 <= out["second_run"]["two_points"] <= answered
+    bad = subprocess.run(cmd + ["--second-beta", "1.5"], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1

@@ -52,6 +52,9 @@ def register(subparsers) -> None:
                         "uavsim.ident.cycle.IDENT_INPUTS)")
     p.add_argument("--combine", choices=["logsum", "logmean", "mean"], default=None,
                    help="with --inputs each: how the cycles' beliefs combine (default mean: their mean probabilities)")
+    p.add_argument("--second-beta", type=float, default=None, metavar="BETA",
+                   help="also fly a second relay run at this beta (e.g. -0.3) on every process and weigh the "
+                        "network's belief by how each class fits both measured points (uavsim.ident.twopoint)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -73,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--n and --chunk must be >= 1")
     if not 0 < args.K[0] <= args.K[1]:
         raise UserError(f"--K needs 0 < LO <= HI, got {args.K[0]} {args.K[1]}")
+    if args.second_beta is not None and not -1 < args.second_beta < 1:
+        raise UserError(f"--second-beta must lie in (-1, 1), got {args.second_beta}")
     recipe = Path(args.recipe) if args.recipe else Path("datasets") / f"{args.loop}.toml"
     if not recipe.is_file():
         raise UserError(f"recipe {recipe} not found (pass --recipe)")
@@ -84,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
-                    combine=args.combine)
+                    combine=args.combine, second_beta=args.second_beta)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

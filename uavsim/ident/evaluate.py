@@ -72,7 +72,7 @@ from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import guard_scale
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
-from uavsim.ident.session import identify_cycle
+from uavsim.ident.session import identify_cycle, second_cycle
 from uavsim.learning.decision import decide
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
@@ -89,6 +89,8 @@ TOP_RECORDED = 8
 GOALS = {"inner": {"median": 1.03, "p95": 1.10, "max": 1.5, "unstable": 0, "refused_fraction": 0.02},
          "lateral": {"p95": 1.20, "unstable": 0}}
 _FAIL = np.inf
+#: the second run's simulation seeds: this plus the first run's
+SECOND_SEED_OFFSET = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,9 @@ class EvalSpec:
     guard : identification backs its PD off by the phase-margin guard (``uavsim.ident.guard``)
     inputs : what the network sees of each run (``extract_cycle``'s ``inputs``; None: the loop's ``IDENT_INPUTS``)
     combine : how several looks' beliefs combine (``uavsim.ident.select.cycle_activations``; None: the default)
+    second_beta : a second relay run at this ``beta`` on every process (its own settings from the hover,
+        the same sensor noise in output units), whose measured point weighs the belief
+        (``uavsim.ident.twopoint``); None: one run, the paper's method
     """
 
     loop: str = "altitude"
@@ -123,6 +128,7 @@ class EvalSpec:
     guard: bool = False
     inputs: str | None = None
     combine: str | None = None
+    second_beta: float | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -205,6 +211,23 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
     return out
 
 
+def _simulate_second(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.ndarray, np.ndarray],
+                     beta: float, chunk: int, log) -> dict[str, Any]:
+    """The same processes' second run at ``beta``: its own settings and draws (seed stream
+    ``SECOND_SEED_OFFSET + seed``), the same noise kind and the same noise in output units (the
+    level, a fraction of each run's exact cycle amplitude, rescaled from the first run's to this one's)."""
+    from uavsim.lumped.simulate import fourier_limit_cycle
+
+    beta1 = recipe.test.beta if recipe.test.beta is not None else -0.73
+    h = recipe.test.h
+    a1 = np.array([fourier_limit_cycle(p, beta1, h)[1] for p in params])
+    a2 = np.array([fourier_limit_cycle(p, beta, h)[1] for p in params])
+    level = np.asarray(noise[1], dtype=np.float64) * a1 / a2
+    rec = replace(recipe, test=replace(recipe.test, beta=float(beta)))
+    log(f"second run at beta {beta:g}")
+    return _simulate(params, rec, SECOND_SEED_OFFSET + seed, (noise[0], level), chunk, log)
+
+
 def _score(fam: str, rate_hz: float, truth: dict[str, np.ndarray], q_opt: np.ndarray, idx: np.ndarray,
            kp, kd, fhz) -> np.ndarray:
     """``J`` of PDs on processes ``idx`` (repeats allowed) against their optima; inf where unstable."""
@@ -246,22 +269,35 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
 
 
 def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
-                  guard: bool = False, inputs: str | None = None, combine: str | None = None) -> dict[str, Any]:
-    """Identify every episode as a session; the cycles' responses for the controls (also of refused ones)."""
+                  guard: bool = False, inputs: str | None = None, combine: str | None = None,
+                  sim2: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Identify every episode as a session; the cycles' responses for the controls (also of refused ones).
+
+    ``sim2``: a second run of every episode at another ``beta``; where it holds a cycle, it weighs the
+    belief (``identify_cycle``'s ``second``), else the episode is identified from its first run alone.
+    """
     from uavsim.data.preprocess import features
 
     n = len(sim["y"])
     rate, h = recipe.episodes.rate_hz, recipe.test.h
     res = {"answers": [None] * n, "why": [None] * n, "response": np.full(n, complex("nan")),
            "response_period": np.full(n, np.nan), "ms": np.full(n, np.nan), "lead": np.full(n, np.nan),
-           "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan)}
+           "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan), "second": np.zeros(n, bool)}
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         try:
             t0 = time.perf_counter()
             f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, inputs=inputs, **kw)
+            f2 = None
+            if sim2 is not None:
+                try:
+                    f2 = second_cycle(sim2["y"][i], sim2["u"][i], rate_hz=rate, h=h, bias=float(sim2["bias"][i]),
+                                      cycles=bundle.cycles)
+                except NoOscillation:
+                    f2 = None
+            res["second"][i] = f2 is not None
             res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard,
-                                               combine=combine)
+                                               combine=combine, second=f2)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             res["why"][i] = str(exc)
@@ -422,17 +458,20 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         params = draw_processes(spec.loop, spec.n, rng, K=spec.K, attitude=b.attitude)
         kind, level = noise_plan(spec.n, rc.noise.kinds, spec.levels, rng)
         r = rc if a is None else replace(rc, att_classes=(a,))
-        sim = _simulate(params, r, spec.seed if a is None else spec.seed * 100 + a, (kind, level), spec.chunk, log)
+        sim_seed = spec.seed if a is None else spec.seed * 100 + a
+        sim = _simulate(params, r, sim_seed, (kind, level), spec.chunk, log)
+        sim2 = None if spec.second_beta is None else _simulate_second(params, r, sim_seed, (kind, level),
+                                                                      spec.second_beta, spec.chunk, log)
         # the MuJoCo vehicle flies the attitude PD at the control rate; a grid designed over it says so
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine)
+        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2)
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,
                     "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "response": ids["response"],
-                    "response_period": ids["response_period"], "top": ids["top"], "truth": truth, "sim": sim, "answers": ids["answers"]})
+                    "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"], "truth": truth, "sim": sim, "answers": ids["answers"]})
         log(f"{'attitude class ' + str(a) + ': ' if a is not None else ''}identified {int((~refused).sum())}/"
             f"{spec.n} ({time.perf_counter() - t0:.0f} s)")
     cat = lambda k: np.concatenate([p[k] for p in per])  # noqa: E731
@@ -448,6 +487,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         "identify_ms": {"median": float(np.nanmedian(ms)), "p95": float(np.nanpercentile(ms, 95))} if np.isfinite(
             ms).any() else {},
         "episodes": _episodes(per),
+        **({"second_run": {"beta": spec.second_beta, "two_points": int(cat("second").sum())}}
+           if spec.second_beta is not None else {}),
         "wall_s": time.perf_counter() - t0,
     }
     if lateral:
