@@ -46,6 +46,11 @@ In the same run, on the same episodes (controls and alternatives):
   class's: ``optimum="auto"``), ``K_true`` (the true ``K``); and the oracle rows with
   the MRFT-point estimate (``*_K_mrft``).
 
+With ``second_beta`` (``uavsim evaluate --second-beta -0.3``) every process also flies a
+second relay run at that ``beta`` (its own settings from the same hover, the same sensor
+noise in output units) and the answer weighs its belief by both measured points
+(``uavsim.ident.twopoint``); the controls are then those of that answer.
+
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
 ``lateral/aNN`` closes it (the attitude table's PD at the control rate).
