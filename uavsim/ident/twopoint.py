@@ -21,9 +21,11 @@ still be the nearest class. The new belief goes to the loop's decision as activa
 (``T log p``), so every decision of ``uavsim.ident.select`` runs on it unchanged; the
 gain estimate and the fitted models stay those of the network's run.
 
-On development seeds 11-13 (300 off-grid processes each, noise 0-20 %:
-docs/results/identification.md) this lowered the inner loops' median J and p95 against
-one run; the same weighting from the first point alone did not.
+On development seeds 11-14 (300 off-grid processes each, noise 0-20 %) it lowered the
+inner loops' median J by 0.006-0.017 and the p95 on all eight sets against one run; the
+same weighing from the first point alone did not. On report seed 2035 altitude gained on
+every figure, attitude and lateral gained at the median but answered more unstable gains
+(docs/results/identification.md): it is opt-in (``uavsim identify --second-run``).
 
     from uavsim.ident.twopoint import two_point_activations
     act2 = two_point_activations(bundle, act, f1, f2)   # f1: the network's run, f2: the run at SECOND_BETA
