@@ -22,15 +22,34 @@ import numpy as np
 
 from uavsim.data.preprocess import process_response
 
-__all__ = ["fit_response", "fit_response_lateral", "attitude_loop_response"]
+__all__ = ["fit_response", "fit_response_lateral", "attitude_loop_response", "unit_response",
+           "unit_response_lateral", "measured_phase"]
+
+
+def measured_phase(G: np.ndarray, ph0: np.ndarray, w: np.ndarray, tau_class: np.ndarray) -> np.ndarray:
+    """The phase of the measured ``G`` (rad) on the branch nearest a class's own, ``ph0 - w tau_class``
+    (``ph0``: the unwrapped phase of its delay-free model). Shapes broadcast."""
+    ph_c = ph0 - w * tau_class
+    return ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
 
 
 def _fitted_delay(G: np.ndarray, ph0: np.ndarray, w: np.ndarray, tau_class: np.ndarray) -> np.ndarray:
-    """Delay (s, >= 0) that turns a delay-free model of unwrapped phase ``ph0`` into the measured ``G``,
-    the measured phase taken on the branch nearest the class's own (``ph0 - w tau_class``)."""
-    ph_c = ph0 - w * tau_class
-    ph_m = ph_c + (np.angle(G) - ph_c + np.pi) % (2 * np.pi) - np.pi
-    return np.maximum((ph0 - ph_m) / w, 0.0)
+    """Delay (s, >= 0) that turns a delay-free model of unwrapped phase ``ph0`` into the measured ``G``."""
+    return np.maximum((ph0 - measured_phase(G, ph0, w, tau_class)) / w, 0.0)
+
+
+def unit_response(w, T_prop, T1) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude and unwrapped phase (rad) of ``1 / (jw (T_prop jw + 1)(T1 jw + 1))``; shapes broadcast."""
+    mag0 = 1.0 / (w * np.hypot(1.0, w * T_prop) * np.hypot(1.0, w * T1))
+    return mag0, -0.5 * np.pi - np.arctan(w * T_prop) - np.arctan(w * T1)
+
+
+def unit_response_lateral(w, T2, Tatt) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude and unwrapped phase (rad) of ``T_att(jw) / (jw (T2 jw + 1))``, ``Tatt`` the closed attitude
+    loop's response at ``w`` (``attitude_loop_response``); unwrapped: that loop lags less than pi at the
+    lateral cycle's frequency. Shapes broadcast."""
+    G0 = Tatt / (1j * w * (1j * w * T2 + 1.0))
+    return np.abs(G0), -0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt)
 
 
 def fit_response(response, response_period, *, T_prop, T1, tau_class, rate_hz: float = 200.0
@@ -54,8 +73,7 @@ def fit_response(response, response_period, *, T_prop, T1, tau_class, rate_hz: f
     w = 2.0 * np.pi / np.asarray(response_period, dtype=np.float64)
     G = process_response(response, response_period, rate_hz=rate_hz)
     Tp, T1, tau_c = (np.broadcast_to(np.asarray(v, dtype=np.float64), w.shape) for v in (T_prop, T1, tau_class))
-    ph0 = -0.5 * np.pi - np.arctan(w * Tp) - np.arctan(w * T1)  # unwrapped phase of G0
-    mag0 = 1.0 / (w * np.hypot(1.0, w * Tp) * np.hypot(1.0, w * T1))
+    mag0, ph0 = unit_response(w, Tp, T1)
     return {"K": np.abs(G) / mag0, "T_prop": Tp, "T1": T1, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c}
 
 
@@ -93,7 +111,5 @@ def fit_response_lateral(response, response_period, *, T2, tau_class, attitude: 
     G = process_response(response, response_period, rate_hz=rate_hz)
     T2, tau_c = (np.broadcast_to(np.asarray(v, dtype=np.float64), w.shape) for v in (T2, tau_class))
     Tatt = attitude_loop_response(w.ravel(), attitude).reshape(w.shape)
-    G0 = Tatt / (1j * w * (1j * w * T2 + 1.0))
-    # unwrapped: the closed attitude loop lags less than pi at the lateral cycle's frequency
-    ph0 = -0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt)
-    return {"K": np.abs(G) / np.abs(G0), "T2": T2, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c}
+    mag0, ph0 = unit_response_lateral(w, T2, Tatt)
+    return {"K": np.abs(G) / mag0, "T2": T2, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c}

@@ -40,6 +40,7 @@ import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures
 from uavsim.errors import NoOscillation, UserError
+from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
@@ -235,7 +236,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     if fam == "lateral" and attitude_class is None:
         raise UserError(f"session {path} is {s.loop}: pass the attitude class its loop closes over "
                         "(--attitude-class N, from `uavsim identify` of the roll/pitch session)")
-    relays = [r for r in s.runs if r.spec.kind in ("np-mrft", "mrft")]
+    relays = [r for r in s.runs if r.spec.kind in RELAY_KINDS]
     if run is not None:
         relays = [r for r in relays if r.spec.file == run]
         if not relays:
@@ -252,7 +253,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
     second = None
     if second_run is not None:
-        r2 = next((x for x in s.runs if x.spec.file == second_run and x.spec.kind in ("np-mrft", "mrft")), None)
+        r2 = next((x for x in s.runs if x.spec.file == second_run and x.spec.kind in RELAY_KINDS), None)
         if r2 is None:
             raise UserError(f"session {path}: no np-mrft/mrft run with file {second_run!r} for the second point")
         if r2.spec.beta is None or abs(float(r2.spec.beta) - b.rule.beta) < 1e-6:

@@ -39,6 +39,12 @@ import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures, process_response
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.response import (
+    attitude_loop_response,
+    measured_phase,
+    unit_response,
+    unit_response_lateral,
+)
 from uavsim.learning.decision import softmax
 
 __all__ = ["SECOND_BETA", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA", "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S",
@@ -67,15 +73,9 @@ def class_response(bundle: ModelBundle, cls, omega) -> tuple[np.ndarray, np.ndar
     w = np.atleast_1d(np.asarray(omega, dtype=np.float64))[None, :]
     c = bundle.column
     if bundle.loop == "lateral":
-        from uavsim.ident.response import attitude_loop_response
-
-        T2 = c("T2")[cls][:, None]
         Tatt = attitude_loop_response(w[0], dict(bundle.attitude or {}))[None, :]
-        mag = np.abs(Tatt) / (w * np.hypot(1.0, w * T2))
-        return mag, np.broadcast_to(-0.5 * np.pi - np.arctan(w * T2) + np.angle(Tatt), mag.shape)
-    Tp, T1 = c("T_prop")[cls][:, None], c("T1")[cls][:, None]
-    mag = 1.0 / (w * np.hypot(1.0, w * Tp) * np.hypot(1.0, w * T1))
-    return mag, -0.5 * np.pi - np.arctan(w * Tp) - np.arctan(w * T1)
+        return unit_response_lateral(w, c("T2")[cls][:, None], Tatt)
+    return unit_response(w, c("T_prop")[cls][:, None], c("T1")[cls][:, None])
 
 
 def _sigmas(f: CycleFeatures, extra: tuple[float, float]) -> tuple[float, float]:
@@ -112,9 +112,8 @@ def two_point_fit(bundle: ModelBundle, cls, points: list[CycleFeatures]) -> dict
     dg = np.log(np.abs(G))[None, :] - np.log(mag0)
     wg = 1.0 / sg**2
     logK = (dg * wg).sum(axis=1) / wg.sum()
-    # each measured phase on the branch nearest the class's model with its own delay
-    ref = ph0 - w[None, :] * bundle.column("tau")[cls][:, None]
-    d = ph0 - (ref + (np.angle(G)[None, :] - ref + np.pi) % (2.0 * np.pi) - np.pi)  # w tau for an exact fit
+    # each measured phase on the branch nearest the class's model with its own delay; w tau for an exact fit
+    d = ph0 - measured_phase(G[None, :], ph0, w[None, :], bundle.column("tau")[cls][:, None])
     wp = 1.0 / sp**2
     tau = np.maximum((d * w * wp).sum(axis=1) / (w**2 * wp).sum(), 0.0)
     chi2 = (((dg - logK[:, None]) ** 2) * wg).sum(axis=1) + (((d - w[None, :] * tau[:, None]) ** 2) * wp).sum(axis=1)
