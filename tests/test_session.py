@@ -232,6 +232,19 @@ def test_step_derivative_round_trip(tmp_path: Path) -> None:
     assert "derivative =" not in (write_session(s, tmp_path / "e") / "session.toml").read_text()
 
 
+def test_relay_bias_trim_round_trip(tmp_path: Path) -> None:
+    # "duty" is written and read back on relay runs; "off" (what an absent key reads as) is not written
+    s = awkward_session(n=10)
+    s.runs[0].spec.bias_trim = "duty"
+    folder = write_session(s, tmp_path / "d")
+    assert 'bias_trim = "duty"' in (folder / "session.toml").read_text()
+    back = read_session(folder)
+    assert back.runs[0].spec.bias_trim == "duty" and back.runs[1].spec.bias_trim == "off"
+    assert_same_session(s, back)
+    s.runs[0].spec.bias_trim = "off"
+    assert "bias_trim =" not in (write_session(s, tmp_path / "o") / "session.toml").read_text()
+
+
 def test_round_trip_large_arrays(tmp_path: Path) -> None:
     s = awkward_session(n=100_000, seed=2)
     assert_same_session(s, read_session(write_session(s, tmp_path)))
@@ -331,6 +344,8 @@ def test_write_rejects_invalid_session_and_writes_nothing(tmp_path: Path) -> Non
         (lambda s: setattr(s.runs[1].spec, "tau_obs", 0.1), "not a key of a mrft run"),
         (lambda s: setattr(s.runs[1].spec, "derivative", "measurement"), "not a key of a mrft run"),
         (lambda s: setattr(s.runs[2].spec, "derivative", "setpoint"), "unknown derivative of a step run 'setpoint'"),
+        (lambda s: setattr(s.runs[2].spec, "bias_trim", "duty"), "not a key of a step run"),
+        (lambda s: setattr(s.runs[1].spec, "bias_trim", "integral"), "unknown bias_trim of a mrft run 'integral'"),
         (lambda s: setattr(s, "runs", []), "no runs"),
         (
             lambda s: setattr(s.runs[0], "data", RunData(*(np.zeros(3),) * 3, np.zeros(4))),
@@ -570,6 +585,9 @@ MALFORMED = {
     "bad_derivative": (doc_case(_set(("runs", 2, "derivative"), "measurment")), TOML,
                        "unknown derivative of a step run 'measurment' (did you mean 'measurement'?"),
     "derivative_number": (doc_case(_set(("runs", 2, "derivative"), 1)), TOML, "derivative must be a string"),
+    "bad_bias_trim": (doc_case(_set(("runs", 0, "bias_trim"), "dutty")), TOML,
+                      "unknown bias_trim of a np-mrft run 'dutty' (did you mean 'duty'?"),
+    "step_with_bias_trim": (doc_case(_set(("runs", 2, "bias_trim"), "duty")), TOML, "not a key of a step run"),
     # invalid values
     "beta_out_of_range": (doc_case(_set(("runs", 0, "beta"), 1.2)), TOML, "beta must be in (-1, 1)"),
     "h_negative": (doc_case(_set(("runs", 1, "h"), -1)), TOML, "h must be > 0"),
@@ -679,9 +697,11 @@ def test_cli_check_json(tmp_path: Path, monkeypatch, capsys) -> None:
     assert obj["effects"] == [{"name": "delay", "params": {"delay": 0.021}}]
     np_run, mrft_run, step_run = obj["runs"]
     assert np_run == {"file": "np.csv", "kind": "np-mrft", "samples": 11, "duration_s": 0.1,
-                      "beta": -0.73, "h": 0.2, "tau_obs": 0.0325, "a_n": 0.0028, "bias": 0.0}  # fmt: skip
+                      "beta": -0.73, "h": 0.2, "tau_obs": 0.0325, "a_n": 0.0028, "bias": 0.0,
+                      "bias_trim": "off"}  # fmt: skip
     assert mrft_run["bias"] == 0.05 and "tau_obs" not in mrft_run
     assert step_run["kind"] == "step" and step_run["step_time"] == 1.0 and "bias" not in step_run
+    assert "bias_trim" not in step_run
 
 
 def test_cli_check_no_model(tmp_path: Path, monkeypatch, capsys) -> None:

@@ -26,8 +26,8 @@ def run_controller(spec: RunSpec, rate_hz: float, *, n: int = 1, reading: int = 
     Parameters
     ----------
     spec : RunSpec
-        The run's entry: ``np-mrft`` (``beta``, ``h``, ``tau_obs``, ``a_n``, ``bias``), ``mrft``
-        (``beta``, ``h``, ``bias``) or ``step`` (``kp``, ``kd``, ``derivative_filter_hz``, ``derivative``).
+        The run's entry: ``np-mrft`` (``beta``, ``h``, ``tau_obs``, ``a_n``, ``bias``, ``bias_trim``),
+        ``mrft`` (``beta``, ``h``, ``bias``, ``bias_trim``) or ``step`` (``kp``, ``kd``, ``derivative_filter_hz``, ``derivative``).
     rate_hz : float
         The session's controller rate, Hz.
     n : int
@@ -37,9 +37,10 @@ def run_controller(spec: RunSpec, rate_hz: float, *, n: int = 1, reading: int = 
     """
     bias = spec.bias or 0.0
     if spec.kind == NP_MRFT_RUN:
-        return NPMRFT(spec.beta, spec.h, spec.tau_obs or 0.0, spec.a_n or 0.0, rate_hz, n, bias=bias, reading=reading)
+        return NPMRFT(spec.beta, spec.h, spec.tau_obs or 0.0, spec.a_n or 0.0, rate_hz, n, bias=bias, reading=reading,
+                      bias_trim=spec.bias_trim)
     if spec.kind == MRFT_RUN:
-        return MRFT(spec.beta, spec.h, rate_hz, n, bias=bias, reading=reading)
+        return MRFT(spec.beta, spec.h, rate_hz, n, bias=bias, reading=reading, bias_trim=spec.bias_trim)
     if spec.kind == STEP_RUN:
         return PD(spec.kp, spec.kd, spec.derivative_filter_hz, rate_hz, n, derivative=spec.derivative)
     raise UserError(f"{spec.file}: unknown run kind {spec.kind!r} (known: {NP_MRFT_RUN}, {MRFT_RUN}, {STEP_RUN})")

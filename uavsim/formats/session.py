@@ -105,6 +105,10 @@ RELAY_KINDS = (NP_MRFT_RUN, MRFT_RUN)
 # (the default, the meaning of every session written before the key existed) or the
 # measurement (no derivative kick when the reference steps).
 STEP_DERIVATIVES = ("error", "measurement")
+# How a relay run's bias moves (docs/formats/session.md, "np-mrft"): it stays (the default,
+# the meaning of every session written before the key existed) or the relay trims it from
+# each cycle's duty.
+RELAY_BIAS_TRIMS = ("off", "duty")
 CSV_HEADER = ("t", "r", "y", "u")
 
 # The effect vocabulary of the spec, in its table order: name -> parameter names, and
@@ -114,15 +118,15 @@ CSV_HEADER = ("t", "r", "y", "u")
 
 # Per run kind: (required parameter keys, optional parameter keys).
 RUN_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    NP_MRFT_RUN: (("beta", "h", "tau_obs", "a_n"), ("bias",)),
-    MRFT_RUN: (("beta", "h"), ("bias",)),
+    NP_MRFT_RUN: (("beta", "h", "tau_obs", "a_n"), ("bias", "bias_trim")),
+    MRFT_RUN: (("beta", "h"), ("bias", "bias_trim")),
     STEP_RUN: (("kp", "kd", "derivative_filter_hz", "step", "step_time"), ("derivative",)),
 }
 # Parameters whose value is a word, each with its words; the first is what an absent key reads as.
-_RUN_WORDS: dict[str, tuple[str, ...]] = {"derivative": STEP_DERIVATIVES}
+_RUN_WORDS: dict[str, tuple[str, ...]] = {"derivative": STEP_DERIVATIVES, "bias_trim": RELAY_BIAS_TRIMS}
 # Every parameter field of RunSpec, in the order they are written.
 _RUN_PARAMS = (
-    "beta", "h", "tau_obs", "a_n", "bias",
+    "beta", "h", "tau_obs", "a_n", "bias", "bias_trim",
     "kp", "kd", "derivative_filter_hz", "step", "step_time", "derivative",
 )  # fmt: skip
 _RUN_ALL_KEYS = ("file", "kind", *_RUN_PARAMS)
@@ -216,7 +220,12 @@ class RunSpec:
     a_n : float, optional
         Noise amplitude of the switching correction, output units, >= 0 (np-mrft).
     bias : float
-        Constant added to the relay output, command units (np-mrft, mrft).
+        Constant added to the relay output, command units (np-mrft, mrft); with
+        ``bias_trim = "duty"`` the bias the run starts with.
+    bias_trim : str
+        How the relay's bias moves, one of :data:`RELAY_BIAS_TRIMS`: ``"off"`` (the
+        default; also what step runs keep) or ``"duty"``, trimmed from each cycle's duty
+        (np-mrft, mrft).
     kp, kd : float, optional
         PD gains, command per output unit and command*s per output unit (step).
     derivative_filter_hz : float, optional
@@ -237,6 +246,7 @@ class RunSpec:
     tau_obs: float | None = None
     a_n: float | None = None
     bias: float = 0.0
+    bias_trim: str = RELAY_BIAS_TRIMS[0]
     kp: float | None = None
     kd: float | None = None
     derivative_filter_hz: float | None = None
@@ -994,7 +1004,8 @@ def _session_toml(session: Session) -> str:
         pairs = [("file", spec.file), ("kind", spec.kind)]
         pairs += [(k, getattr(spec, k)) for k in required]
         # Optional keys: written unless they hold what an absent key reads back as
-        # (bias exactly +0.0, so -0.0 survives the round trip too; derivative "error").
+        # (bias exactly +0.0, so -0.0 survives the round trip too; derivative "error",
+        # bias_trim "off").
         pairs += [(k, getattr(spec, k)) for k in optional if not _is_unset(k, getattr(spec, k))]
         lines += ["", "[[runs]]", *_toml_lines(pairs)]
     for effect in session.effects:

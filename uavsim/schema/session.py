@@ -31,6 +31,9 @@ _RUN_TYPES: dict[str, Any] = {
     "bias": Annotated[Finite, Field(description="relay bias, command units")],
     "derivative_filter_hz": Annotated[Positive, Field(description="derivative filter cut-off, Hz")],
     "step_time": Annotated[NonNegative, Field(description="time of the reference step, s")],
+    "bias_trim": Annotated[Literal[fmt.RELAY_BIAS_TRIMS],  # type: ignore[valid-type]
+                           Field(description="how the relay's bias moves: stays (off, default) or trimmed from "
+                                             "each cycle's duty (duty)")],
     "derivative": Annotated[Literal[fmt.STEP_DERIVATIVES],  # type: ignore[valid-type]
                             Field(description="what the step's PD differentiates: the error (default) or the "
                                               "measurement (no kick on the reference step)")],
