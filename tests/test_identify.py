@@ -195,6 +195,63 @@ def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
         identify_session(path, models=setup["model"], second_run="relay.csv")
 
 
+def test_a_trimmed_relay_run_is_read_by_its_states(setup, tmp_path):
+    """A session whose relay trimmed its bias (``bias_trim = "duty"``): its recorded ``u`` moves at
+    switches, identification reads it by the relay's states and answers the class and gain; the same
+    run declared untrimmed is refused in one line (``u`` is not a relay of constant bias)."""
+    from uavsim.control.relay import NPMRFT
+    from uavsim.sim.runner import LoopBatch
+    from uavsim.sim.sessions import relay_session
+
+    g = setup["grid"]
+    p = replace(g.params_of(CLASSES[TRUE]), K=K_TRUE)
+    lb = LoopBatch([p], dt=0.0005, rate_hz=200.0, seed=5)
+    res = lb.run(NPMRFT(g.beta, H, 0.01, 0.0, 200.0, 1, bias=0.3 * H, bias_trim="duty"), duration_s=8.0)
+    s = relay_session(res, 0, p, beta=g.beta, h=H, rate_hz=200.0, tau_obs=0.01, a_n=0.0, bias=0.3 * H,
+                      with_model=False)
+    s.runs[0].spec.bias_trim = "duty"
+    u = s.runs[0].data.u
+    assert np.unique(np.round(u, 9)).size > 2  # the bias moved
+    ans = identify_session(write_session(s, tmp_path / "trim"), models=setup["model"])
+    assert ans["class"] == TRUE
+    assert ans["params"]["K"] == pytest.approx(K_TRUE, rel=0.01)
+    s.runs[0].spec.bias_trim = "off"
+    with pytest.raises(NoOscillation, match="not a relay command"):
+        identify_session(write_session(s, tmp_path / "off"), models=setup["model"])
+
+
+def test_a_network_of_trimmed_runs_refuses_an_asymmetric_cycle(setup):
+    """A network trained on bias-trimmed relay runs (``bias_trim`` in its bundle) has never seen a biased
+    cycle: an untrimmed run at a bias of 0.35 h is refused in one line naming the duty and the cure, the same
+    run trimmed is answered, and a network of untrimmed runs answers both (the export says which it is)."""
+    from dataclasses import replace as dc_replace
+
+    from uavsim.control.relay import NPMRFT, untrimmed
+    from uavsim.ident.bundle import load_bundle
+    from uavsim.ident.cycle import DUTY_LIMIT
+    from uavsim.ident.session import identify_arrays
+    from uavsim.sim.runner import LoopBatch
+
+    g = setup["grid"]
+    off = load_bundle(setup["model"])
+    assert off.bias_trim == "off" and off.meta["identification"]["relay"] == {"bias_trim": "off"}
+    duty = dc_replace(off, bias_trim="duty")
+    p = replace(g.params_of(CLASSES[TRUE]), K=K_TRUE)
+    b = 0.35 * H
+    runs = {}
+    for trim in ("off", "duty"):
+        res = LoopBatch([p], dt=0.0005, rate_hz=200.0, seed=5).run(
+            NPMRFT(g.beta, H, 0.01, 0.0, 200.0, 1, bias=b, bias_trim=trim), duration_s=8.0)
+        u = res.u[0] if trim == "off" else untrimmed(res.u[0], H, b)
+        runs[trim] = (res.y[0], u)
+    kw = {"rate_hz": 200.0, "h": H, "bias": b, "beta": g.beta}
+    with pytest.raises(NoOscillation, match=r"relay duty 0\.\d\d over the cycle .*bias_trim = \"duty\""):
+        identify_arrays(*runs["off"], bundle=duty, **kw)
+    assert 0.35 > DUTY_LIMIT
+    assert identify_arrays(*runs["duty"], bundle=duty, **kw)["class"] == TRUE
+    assert identify_arrays(*runs["off"], bundle=off, **kw)["class"] == TRUE
+
+
 def test_missing_model_is_user_error(setup, tmp_path):
     with pytest.raises(UserError, match="no trained altitude network"):
         identify_session(setup["session"], models=tmp_path)

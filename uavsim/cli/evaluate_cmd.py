@@ -55,6 +55,9 @@ def register(subparsers) -> None:
     p.add_argument("--second-beta", type=float, default=None, metavar="BETA",
                    help="also fly a second relay run at this beta (e.g. -0.3) on every process and weigh the "
                         "network's belief by how each class fits both measured points (uavsim.ident.twopoint)")
+    p.add_argument("--bias-trim", choices=["off", "duty"], default=None,
+                   help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
+                        "network's dataset recipe's [test] bias_trim")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -89,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
-                    combine=args.combine, second_beta=args.second_beta)
+                    combine=args.combine, second_beta=args.second_beta, bias_trim=args.bias_trim)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from uavsim.control.relay import NPMRFT
+from uavsim.control.relay import NPMRFT, untrimmed
 from uavsim.data import preprocess
 from uavsim.data.noise_trace import NoiseTrace
 from uavsim.data.plan import HOVER_S, STAGE_SETTLE, Plan, load_family_grid, make_plan
@@ -122,7 +122,8 @@ def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NP
     rate = r.episodes.rate_hz
     m = len(ids)
     if r.test.settings == "fixed":
-        return NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], rate, m, bias=plan.bias[ids])
+        return NPMRFT(plan.beta, r.test.h, plan.tau_obs[ids], plan.a_n[ids], rate, m, bias=plan.bias[ids],
+                      bias_trim=r.test.bias_trim)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1]))
     steps = int(round(HOVER_S * rate))
     eff = _noise_effect(r.noise.kinds, plan.noise_kind[ids], plan.noise_level[ids] * plan.a0[ids], steps)
@@ -131,7 +132,7 @@ def episode_controller(plan: Plan, ids: np.ndarray, chunk: int, seed: int) -> NP
     for i, est in enumerate(estimate_noise_batch(hover, rate)):
         tau[i], a_n[i] = recommend(est, plan.beta)
         q[i] = est.a_n
-    relay = NPMRFT(plan.beta, r.test.h, tau, a_n, rate, m, bias=plan.bias[ids])
+    relay = NPMRFT(plan.beta, r.test.h, tau, a_n, rate, m, bias=plan.bias[ids], bias_trim=r.test.bias_trim)
     stage = int(round(float(plan.stage_s[chunk]) * rate))
     return RefiningRelay(relay, stage, r.test.refinements, q)
 
@@ -177,8 +178,9 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
     res = lb.run(ctrl, duration_s)
     relay = ctrl.relay if isinstance(ctrl, RefiningRelay) else ctrl
     resp: dict[str, np.ndarray] = {}
+    u = untrimmed(res.u, r.test.h, plan.bias[ids]) if r.test.bias_trim != "off" else res.u
     X, period, amp, ok = preprocess.features_batch(
-        np.nan_to_num(res.y), res.u, r.episodes.rate_hz, np.full(m, r.test.h), plan.bias[ids], plan.L,
+        np.nan_to_num(res.y), u, r.episodes.rate_hz, np.full(m, r.test.h), plan.bias[ids], plan.L,
         cycles=r.preprocess.cycles, response=resp)
     ok &= ~res.diverged
     out = {"ids": np.asarray(ids, dtype=np.int64), "X": X, "period": period, "amplitude": amp, "ok": ok,

@@ -27,6 +27,7 @@ Recipe reference (every key optional unless marked)::
     refine_cycles = 4            # recommended: length of each refined run, in cycles (as episodes.cycles)
     # tau_obs = 0.03             # fixed only: s, capped per class so beta_min <= beta
     # a_n = 1.0                  # fixed only: a multiple of the episode's noise amplitude
+    bias_trim = "off"            # "duty": the relay trims its bias from each cycle's duty (see below)
 
 With ``settings = "recommended"`` every episode gets the NP-MRFT settings of
 the user's procedure (``uavsim.noise.estimate``): a hover segment of the
@@ -36,6 +37,11 @@ episode then runs ``refinements`` times ``refine_cycles`` cycles (or
 before the episode proper (``cycles`` or ``duration_s``) with the last ones.
 A recipe that gives ``tau_obs`` or ``a_n`` and no ``settings`` is read as
 ``settings = "fixed"`` (how recipes were written before).
+
+With ``bias_trim = "duty"`` the relay starts at its drawn bias and trims it from
+each cycle's duty (``uavsim.control.relay``: on these integrating loops the cycle
+then becomes the bias-free one), as a user's relay trims the error of its hover
+command; the features are read from the relay's states.
 
     [episodes]
     per_class = 80               # required
@@ -105,6 +111,8 @@ class TestSpec:
         Fixed settings: NP-MRFT observation time, s, >= 0 (capped per class, see module docstring).
     a_n : float
         Fixed settings: NP-MRFT ``a_n`` relative to the episode's noise amplitude, >= 0.
+    bias_trim : str
+        ``"off"`` or ``"duty"`` (``uavsim.control.relay.BIAS_TRIMS``).
     """
 
     beta: float | None = None
@@ -114,6 +122,7 @@ class TestSpec:
     refine_cycles: float = 4.0
     tau_obs: float = 0.03
     a_n: float = 1.0
+    bias_trim: str = "off"
 
 
 @dataclass(frozen=True)
@@ -188,7 +197,7 @@ class Recipe:
 
 
 _SECTIONS = {
-    "test": ("beta", "h", "settings", "refinements", "refine_cycles", "tau_obs", "a_n"),
+    "test": ("beta", "h", "settings", "refinements", "refine_cycles", "tau_obs", "a_n", "bias_trim"),
     "episodes": ("per_class", "cycles", "duration_s", "dt", "rate_hz", "chunk"),
     "randomize": ("K", "bias", "y0", "offgrid"),
     "noise": ("kinds", "weights", "level"),
@@ -286,7 +295,7 @@ def parse_recipe(text: str, source: str = "<recipe>", name: str = "recipe") -> R
                     refinements=refinements,
                     refine_cycles=_num(src, "test.refine_cycles", t.get("refine_cycles", 4.0), 2, strict_lo=True),
                     tau_obs=_num(src, "test.tau_obs", t.get("tau_obs", 0.03), 0),
-                    a_n=_num(src, "test.a_n", t.get("a_n", 1.0), 0))
+                    a_n=_num(src, "test.a_n", t.get("a_n", 1.0), 0), bias_trim=t.get("bias_trim", "off"))
 
     e = _section(src, doc, "episodes")
     if "per_class" not in e:

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from uavsim.errors import UserError
+from uavsim.formats.session import RELAY_BIAS_TRIMS
 from uavsim.learning.bundle import BUNDLE_FORMAT
 from uavsim.learning.export import META_FILE, WEIGHTS_FILE, Predictor
 from uavsim.tuning.rule import TuningRule
@@ -100,6 +101,10 @@ class ModelBundle:
     decision : str
         The class decision identification makes by default: the trainer's choice, ``bayes``
         where the bundle carries ``J`` and names none, ``argmax`` without ``J``.
+    bias_trim : str
+        The relay of the network's training runs: ``"duty"`` where it trimmed its bias (their
+        cycles are symmetric: ``uavsim.ident.cycle.duty_refusal``), ``"off"`` (also an export
+        from before the section said).
     meta : dict
         ``meta.json`` as read.
     """
@@ -119,6 +124,7 @@ class ModelBundle:
     cost: np.ndarray | None = field(default=None, repr=False)
     temperature: float = 1.0
     decision: str = "argmax"
+    bias_trim: str = "off"
 
     @property
     def family(self) -> str:
@@ -258,8 +264,11 @@ def _read_bundle(d: Path) -> ModelBundle:
     decision = ((sec.get("class_decision") or {}).get("decision") or "bayes") if cost is not None else "argmax"
     if decision not in ("bayes", "argmax"):
         raise UserError(f"{where}: class decision {decision!r} is not bayes or argmax")
+    bias_trim = (sec.get("relay") or {}).get("bias_trim", "off")
+    if bias_trim not in RELAY_BIAS_TRIMS:
+        raise UserError(f"{where}: relay bias_trim {bias_trim!r} is not one of {', '.join(RELAY_BIAS_TRIMS)}")
     return ModelBundle(dir=d, loop=loop, rate_hz=_num(sec, "rate_hz", where), rule=r, input_length=L,
                        cycles=int(_num(pre, "cycles", where, 1)),
                        input_rate_hz=_num(pre, "input_rate_hz", where, 200.0), classes=classes, predictor=pred,
-                       meta=meta, attitude=att if loop == "lateral" else None, cost=cost, temperature=temperature, decision=decision,
+                       meta=meta, attitude=att if loop == "lateral" else None, cost=cost, temperature=temperature, decision=decision, bias_trim=bias_trim,
                        att_class=int(meta["att_class"]) if meta.get("att_class") is not None else None)

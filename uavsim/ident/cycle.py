@@ -10,7 +10,10 @@ never a guess):
   relay switching on noise, or a process outside the grid's box;
 * a phase the relay cannot have put the loop at (``phase_lead`` above
   ``PHASE_LEAD_MAX_DEG``): switched early, on noise, and then the "response"
-  ``Y1 / (h U1)`` is partly the noise's correlation with the relay.
+  ``Y1 / (h U1)`` is partly the noise's correlation with the relay;
+* for a network trained on relay runs that trim their bias (``ModelBundle.bias_trim``),
+  a cycle whose duty is further from a half than ``DUTY_LIMIT`` (``duty_refusal``): a
+  relay bias (or disturbance) the training cycles never had.
 
 When the run's last cycles are refused, the steady cycles before them are
 tried, up to ``MAX_CYCLES_DROPPED`` cycles back (a burst of noise can break the
@@ -46,9 +49,9 @@ from uavsim.data.preprocess import (
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 
-__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL", "UNEVEN_CYCLE_LOOPS",
-           "IDENT_INPUTS",
-           "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal"]
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL",
+           "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
+           "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal", "duty_refusal"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -57,6 +60,10 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 #: NP-MRFT's own cycles lead by up to ~55 deg with a user's settings (a long observation window and a
 #: relay bias of half h, even without noise: ``uavsim evaluate``), and identify as well as the others
 PHASE_LEAD_MAX_DEG = 70.0
+#: a network trained on bias-trimmed relays refuses a cycle whose duty error ``|2 d - 1|`` (about the relay
+#: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (noise at 10-20 %), and
+#: untrimmed runs beyond it were unstable answers in 1 of 10 to 3 of 10 (development seed 11)
+DUTY_LIMIT = 0.2
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
 #: identification only: where no cut has two cycles within the preprocessing's steady tolerance, the cut whose
@@ -82,6 +89,19 @@ def saturation_refusal(y: np.ndarray) -> str | None:
         if frac > SATURATION_FRACTION:
             return f"output saturated: the cycle sits at its {name} level {100 * frac:.0f}% of the time"
     return None
+
+
+def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
+    """Why a cycle of relay states ``s`` (+-1, whole cycles) is not one a network trained on relays with
+    ``bias_trim`` knows (a trimmed relay's cycle is symmetric: duty error above ``DUTY_LIMIT``), or None."""
+    s = np.asarray(s, dtype=np.float64)
+    if bias_trim == "off" or s.size == 0:
+        return None
+    err = abs(float(np.mean(s > 0)) * 2.0 - 1.0)
+    if err <= DUTY_LIMIT:
+        return None
+    return (f"relay duty {float(np.mean(s > 0)):.2f} over the cycle (a bias of about {err:.2f} h): the network was "
+            "trained on relay runs that trim their bias; fly the run with bias_trim = \"duty\"")
 
 
 def period_refusal(period: float, bounds: tuple[float, float]) -> str | None:
@@ -160,6 +180,7 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
         f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol,
                      inputs=inputs)
         why = (saturation_refusal(y[f.start : f.stop])
+               or duty_refusal(pos[f.start : f.stop], bundle.bias_trim)
                or period_refusal(f.period, bundle.period_bounds())
                or phase_refusal(f.response, f.response_period, nb, bundle.input_rate_hz))
         if why:

@@ -70,6 +70,7 @@ from typing import Any
 
 import numpy as np
 
+from uavsim.control.relay import check_bias_trim, untrimmed
 from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
@@ -119,6 +120,7 @@ class EvalSpec:
     second_beta : a second relay run at this ``beta`` on every process (its own settings from the hover,
         the same sensor noise in output units), whose measured point weighs the belief
         (``uavsim.ident.twopoint``); None: one run, the paper's method
+    bias_trim : the relays' bias trim (``uavsim.control.relay.BIAS_TRIMS``); None: the recipe's
     """
 
     loop: str = "altitude"
@@ -134,6 +136,7 @@ class EvalSpec:
     inputs: str | None = None
     combine: str | None = None
     second_beta: float | None = None
+    bias_trim: str | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -204,12 +207,16 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
            "tau_obs": np.zeros(n), "a_n": np.zeros(n)}
     rec = replace(recipe, preprocess=replace(recipe.preprocess, keep_raw=True))
     t0 = time.perf_counter()
+    trimmed = recipe.test.bias_trim != "off"
     for j, i0 in enumerate(range(0, n, chunk)):
         idx = order[i0 : i0 + chunk]
         _, _, _, _, m = simulate_features([params[i] for i in idx], rec, seed * 1000 + j,
                                           noise=(noise[0][idx], noise[1][idx]))
         for k, i in enumerate(idx):
-            out["y"][i], out["u"][i] = np.nan_to_num(m["y"][k].astype(np.float64)), m["u"][k].astype(np.float64)
+            u = m["u"][k].astype(np.float64)
+            # a trimmed run is read by its relay states at the drawn bias, as a session's is
+            out["y"][i] = np.nan_to_num(m["y"][k].astype(np.float64))
+            out["u"][i] = untrimmed(u, recipe.test.h, m["bias"][k]) if trimmed else u
         for key in ("bias", "diverged", "tau_obs", "a_n"):
             out[key][idx] = m[key]
         log(f"simulated {min(i0 + chunk, n)}/{n} episodes ({time.perf_counter() - t0:.0f} s)")
@@ -447,6 +454,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
     log = log or (lambda msg: print(f"evaluate: {msg}", file=sys.stderr, flush=True))
     t0 = time.perf_counter()
     rc = load_recipe(recipe)
+    if spec.bias_trim is not None:
+        rc = replace(rc, test=replace(rc.test, bias_trim=check_bias_trim(spec.bias_trim)))
     if rc.test.settings != "recommended":
         raise UserError(f"{recipe}: settings = {rc.test.settings!r}; the evaluation runs the relay with a user's "
                         "settings (settings = \"recommended\"), never ones made from the true cycle")

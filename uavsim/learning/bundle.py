@@ -2,7 +2,8 @@
 
 Written by the trainer beside the network (``uavsim.learning.export``), read by
 ``uavsim.ident.bundle``: the control rate of the class table's PDs, the grid's
-rule, the preprocessing settings, and for a lateral network the attitude loop
+rule, the preprocessing settings, the relay its training runs flew (``relay``: whether
+it trimmed its bias, ``uavsim.control.relay``), and for a lateral network the attitude loop
 its sub-grid closes, and the class decision (least expected log J over the cost matrix
 ``J`` that ``weights.npz`` carries: ``uavsim.learning.decision``). The class table itself (with the grid's table of PDs at
 the control rate, ``table_*`` columns) is the dataset's, copied as ``classes``.
@@ -24,7 +25,7 @@ BUNDLE_FORMAT = "uavsim-ident/1"
 
 
 def bundle_section(*, loop: str, grid_hash: str, rate_hz: float, beta: float | None, input_length: int,
-                   cycles: int, att_class: int | None = None) -> dict[str, Any]:
+                   cycles: int, att_class: int | None = None, bias_trim: str = "off") -> dict[str, Any]:
     """The ``identification`` section of an export's ``meta.json`` (called by the trainer).
 
     The rule (and for a lateral sub-grid its attitude loop) comes from the package grid and
@@ -55,6 +56,7 @@ def bundle_section(*, loop: str, grid_hash: str, rate_hz: float, beta: float | N
                      "gain_scale": float(rule.gain_scale)},
             "preprocess": {"input_rate_hz": INPUT_RATE_HZ, "input_length": int(input_length), "cycles": int(cycles),
                            "channels": list(CHANNELS)},
+            "relay": {"bias_trim": str(bias_trim)},
             "attitude": att,
             "class_decision": {"decision": "bayes", "cost": "weights.npz J: rows class answered, columns true "
                                "class, clipped to [1, 1000]", "belief": "softmax(a / T), T: weights.npz temperature"}}

@@ -461,9 +461,11 @@ def _grid_pm(attrs: dict[str, Any]) -> float | None:
 def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[str, Any]:
     """What identification needs, stored beside the exported network."""
     a = data.attrs
-    cycles = 1
-    try:  # cycles per input, from the dataset recipe's [preprocess] (identification must use the same)
-        cycles = int(tomllib.loads(str(a.get("recipe", ""))).get("preprocess", {}).get("cycles", 1))
+    cycles, bias_trim = 1, "off"
+    try:  # cycles per input and the relay's bias trim, from the dataset recipe (identification must match)
+        doc = tomllib.loads(str(a.get("recipe", "")))
+        cycles = int(doc.get("preprocess", {}).get("cycles", 1))
+        bias_trim = str(doc.get("test", {}).get("bias_trim", "off"))
     except (tomllib.TOMLDecodeError, TypeError, ValueError):
         pass
     from uavsim.learning.bundle import bundle_section
@@ -472,7 +474,8 @@ def _class_meta(data: TrainData, recipe: TrainRecipe, cfg: NetConfig) -> dict[st
     ident = bundle_section(loop=a.get("loop", recipe.loop), grid_hash=str(a.get("grid_hash", "")),
                            rate_hz=float(a.get("rate_hz") or 200.0), beta=a.get("beta"),
                            input_length=cfg.input_length, cycles=cyc,
-                           att_class=int(a["att_class"]) if a.get("att_class") is not None else None)
+                           att_class=int(a["att_class"]) if a.get("att_class") is not None else None,
+                           bias_trim=bias_trim)
     return {
         "identification": ident,
         "cycles": cyc,

@@ -42,6 +42,9 @@ class Test(Table):
     tau_obs: NonNegative | None = Field(default=None, description="fixed only: NP-MRFT observation time, s (0.03)")
     a_n: NonNegative | None = Field(default=None,
                                     description="fixed only: NP-MRFT a_n / the episode's noise amplitude (1.0)")
+    bias_trim: Literal["off", "duty"] = Field(
+        default="off", description="off: the relay bias stays as drawn; duty: the relay trims it from each cycle's "
+                                   "duty (uavsim.control.relay)")
 
     @model_validator(mode="after")
     def _settings(self):
