@@ -289,13 +289,15 @@ def test_cli_json_and_errors(setup, tmp_path):
     assert res.returncode == 0, res.stderr
     ans = json.loads(res.stdout)
     assert set(ans) >= {"loop", "class", "params", "gains", "gains_source"} and ans["class"] == TRUE
-    assert "guard" not in ans
+    # the inner loops' default applies the guard (DEFAULT_GUARD); --no-guard answers the table's PD
     g = identify_session(setup["session"], models=setup["model"], guard=True)  # what --guard asks for
     s = g["guard"]["scale"]
     assert 0.5 <= s <= 1.0 and g["gains"]["kp"] == pytest.approx(s * ans["gains_table"]["kp"])
-    res = subprocess.run(cmd + [str(setup["session"]), "--models", str(setup["model"]), "--guard", "--json"],
+    assert ans["guard"]["scale"] == s and ans["gains"] == g["gains"]
+    res = subprocess.run(cmd + [str(setup["session"]), "--models", str(setup["model"]), "--no-guard", "--json"],
                          capture_output=True, text=True, cwd=ROOT)
-    assert res.returncode == 0 and json.loads(res.stdout)["guard"]["scale"] == s
+    plain = json.loads(res.stdout)
+    assert res.returncode == 0 and "guard" not in plain and plain["gains"] == plain["gains_table"]
 
     def cut(run):
         for a in ("t", "r", "y", "u"):

@@ -43,9 +43,10 @@ def register(subparsers) -> None:
     p.add_argument("--decision", choices=["bayes", "argmax", "fitted", "stable", "blend"], default=None,
                    help="identification's class decision (default: stable on lateral loops, blend on the inner ones); the "
                         "rows answer_bayes, answer_argmax, answer_fitted and answer_blend score those in the same run")
-    p.add_argument("--guard", action="store_true",
-                   help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard); the row "
-                        "answer_guarded scores the guard in every run")
+    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=None,
+                   help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard; default: "
+                        "identification's, on for the inner loops); the row answer_guarded scores the guard in "
+                        "every run")
     p.add_argument("--inputs", choices=["last", "mean", "each"], default=None,
                    help="what the network sees of each relay run: the last cycle (as in training), the mean of the "
                         "steady cycles, each steady cycle as its own input (default: the loop's, "

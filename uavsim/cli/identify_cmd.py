@@ -47,9 +47,10 @@ def register(subparsers) -> None:
                         "(fitted, a few ms), or stability on those models first (stable, with a factor on the PD), or the "
                         "fitted cost plus the grid's (blend, a few ms); default: stable on lateral loops, blend on the "
                         "inner ones (the bundle's decision where it has no cost matrix)")
-    p.add_argument("--guard", action="store_true",
+    p.add_argument("--guard", action=argparse.BooleanOptionalAction, default=None,
                    help="back the table's PD off where the identified model with 5 degrees more lag needs it "
-                        "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default off")
+                        "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default: on for altitude and "
+                        "attitude, off for lateral loops")
     p.add_argument("--second-run", metavar="FILE",
                    help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "
                         "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint)")

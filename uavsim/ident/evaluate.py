@@ -114,7 +114,8 @@ class EvalSpec:
     att_classes : lateral: the attitude classes (default: every one with a network)
     optimum : identification's ``optimum`` mode (``uavsim.ident.session``)
     decision : identification's class decision (``uavsim.ident.select``; None: the bundle's)
-    guard : identification backs its PD off by the phase-margin guard (``uavsim.ident.guard``)
+    guard : identification backs its PD off by the phase-margin guard (``uavsim.ident.guard``); None:
+        identification's default (``DEFAULT_GUARD``)
     inputs : what the network sees of each run (``extract_cycle``'s ``inputs``; None: the loop's ``IDENT_INPUTS``)
     combine : how several looks' beliefs combine (``uavsim.ident.select.cycle_activations``; None: the default)
     second_beta : a second relay run at this ``beta`` on every process (its own settings from the hover,
@@ -132,7 +133,7 @@ class EvalSpec:
     att_classes: tuple[int, ...] | None = None
     optimum: str = "never"
     decision: str | None = None
-    guard: bool = False
+    guard: bool | None = None
     inputs: str | None = None
     combine: str | None = None
     second_beta: float | None = None
@@ -281,7 +282,7 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
 
 
 def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
-                  guard: bool = False, inputs: str | None = None, combine: str | None = None,
+                  guard: bool | None = None, inputs: str | None = None, combine: str | None = None,
                   sim2: dict[str, Any] | None = None) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones).
 

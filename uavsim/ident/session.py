@@ -10,7 +10,9 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    ``decision="argmax"``: the most likely class, also what a bundle exported without the
    matrix answers);
 3. the gains: the table's robust PD of the class over the estimated gain
-   ``K_hat`` (``uavsim.ident.gains``), the real-time answer. With ``optimum``
+   ``K_hat`` (``uavsim.ident.gains``), the real-time answer, backed off on the inner
+   loops where the answer's fitted model with a few degrees more lag needs it
+   (``uavsim.ident.guard``). With ``optimum``
    the fitted model's own optimum at the control rate is computed too (~10-20 ms,
    its latency in the answer) and answered when the fitted model is off the
    grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
@@ -45,6 +47,7 @@ from uavsim.formats.session import RELAY_KINDS, RunSpec
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
+from uavsim.ident.guard import GUARD_PHASE_DEG, default_guard, guard_scale
 from uavsim.ident.select import cycle_activations, decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
@@ -63,7 +66,7 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
                    attitude: dict[str, float] | None = None, decision: str | None = None,
-                   guard: bool = False, combine: str | None = None, second: CycleFeatures | None = None
+                   guard: bool | None = None, combine: str | None = None, second: CycleFeatures | None = None
                    ) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
@@ -83,10 +86,11 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         The class decision (``uavsim.ident.select``); None: the loop's default
         (``DEFAULT_DECISION``: ``stable`` on lateral loops, ``blend`` on the inner ones) where the
         bundle carries its cost matrix, else the bundle's (``ModelBundle.decision``).
-    guard : bool
+    guard : bool or None
         Back the table's PD off where the answer's fitted model with a few degrees more lag
         needs it (``uavsim.ident.guard``; the answer's ``guard``: ``scale``, ``phase_deg``,
-        ``latency_ms``). Not applied to an optimum answered.
+        ``latency_ms``). Not applied to an optimum answered. None: the loop's default
+        (``uavsim.ident.guard.DEFAULT_GUARD``: on for the inner loops).
     combine : str or None
         How the beliefs of several looks at the run combine, where ``f`` holds them
         (``uavsim.ident.select.cycle_activations``); None: ``DEFAULT_LOOK_COMBINE``.
@@ -105,6 +109,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     """
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
+    guard = default_guard(bundle.loop, guard)
     act = cycle_activations(bundle, f, combine=combine)
     if second is not None:  # the belief weighed by how each class fits both measured points
         from uavsim.ident.twopoint import two_point_activations
@@ -138,8 +143,6 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                     "gain_estimate": "K_hat = |G(jw)| / |G_class(jw)| at the measured w"}
     ans["gains_table"] = _floats(g_tab)
     if guard:
-        from uavsim.ident.guard import GUARD_PHASE_DEG, guard_scale
-
         t0 = time.perf_counter()
         s = float(guard_scale(bundle, [c], [f.response], [f.response_period], kp=g_tab["kp"], kd=g_tab["kd"],
                               derivative_filter_hz=g_tab["derivative_filter_hz"], model=model)[0])
@@ -173,7 +176,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
                     beta: float | None = None, optimum: str = "never",
                     attitude: dict[str, float] | None = None, decision: str | None = None,
-                    guard: bool = False, second: CycleFeatures | None = None) -> dict[str, Any]:
+                    guard: bool | None = None, second: CycleFeatures | None = None) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
@@ -199,7 +202,7 @@ def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
-                     optimum: str = "never", decision: str | None = None, guard: bool = False,
+                     optimum: str = "never", decision: str | None = None, guard: bool | None = None,
                      second_run: str | None = None) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
