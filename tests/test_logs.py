@@ -106,6 +106,21 @@ def test_ulog_round_trip_identifies_as_the_flight(flight, tmp_path):
     _same_identification(identify_session(tmp_path / "s", models=flight["model"]), flight["answer"])
 
 
+def test_trimmed_relay_log_needs_its_levels_and_is_written_trimmed(flight, tmp_path):
+    """A flight whose relay trimmed its bias: its levels are not detected (u has more than two), so the import
+    asks for them in one line; given, the run is written with ``bias_trim = "duty"`` and read by its states."""
+    log = px4_log(tmp_path / "flight.ulg", flight)
+    with pytest.raises(UserError, match="pass --h, --bias"):
+        import_log(log, tmp_path / "none", preset="px4-altitude", bias_trim="duty", **_spec(flight))
+    assert not (tmp_path / "none").exists()
+    src = flight["session"].runs[0]
+    t0 = T0_US * 1e-6 + 300e-6
+    ans = import_log(log, tmp_path / "s", preset="px4-altitude", bias_trim="duty", h=src.spec.h,
+                     bias=HOVER + src.spec.bias, start=t0, stop=t0 + src.data.t[-1], **_spec(flight))
+    assert ans["run"]["bias_trim"] == "duty" and read_session(tmp_path / "s").runs[0].spec.bias_trim == "duty"
+    _same_identification(identify_session(tmp_path / "s", models=flight["model"]), flight["answer"])
+
+
 def test_dataflash_round_trip_identifies_as_the_flight(flight, tmp_path, capsys):
     log = ardupilot_log(tmp_path / "00000001.BIN", flight)
     sp = _spec(flight)

@@ -163,7 +163,8 @@ def import_log(log: PathLike, out: PathLike, **kw: Any) -> dict[str, Any]:
     """A flight log (PX4 ULog, ArduPilot DataFlash, ROS 2 bag) as a session (``uavsim session import``).
 
     Keyword arguments are those of ``uavsim.logs.import_log`` (``preset``, ``r``, ``y``, ``u``,
-    ``loop``, ``kind``, ``beta``, ``h``, ``bias``, ``tau_obs``, ``a_n``, ``rate_hz``, ``start``, ``stop``).
+    ``loop``, ``kind``, ``beta``, ``h``, ``bias``, ``tau_obs``, ``a_n``, ``rate_hz``, ``start``, ``stop``,
+    ``bias_trim``).
     Returns what was written and what was detected.
     """
     from uavsim.logs import import_log as _import

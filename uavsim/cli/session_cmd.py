@@ -67,6 +67,9 @@ def _register_import(actions) -> None:
     imp.add_argument("--beta", type=float, help="the relay's beta (required)")
     imp.add_argument("--h", type=float, help="relay amplitude, command units (default: detected in u)")
     imp.add_argument("--bias", type=float, help="relay bias, command units (default: detected in u)")
+    imp.add_argument("--bias-trim", choices=["off", "duty"], default="off",
+                     help="duty: the flight's relay trimmed its bias from each cycle's duty (then give --h, --bias, "
+                          "--start and --stop: its u has more than two levels)")
     imp.add_argument("--tau-obs", type=float, help="NP-MRFT observation time, s (np-mrft)")
     imp.add_argument("--a-n", type=float, help="NP-MRFT noise amplitude, output units (np-mrft)")
     imp.add_argument("--rate", type=float, help="control rate, Hz (default: u's logging rate)")
@@ -83,7 +86,7 @@ def _import(args: argparse.Namespace) -> int:
     ans = import_log(args.log, args.out, preset=args.preset, r=args.r, y=args.y, u=args.u, loop=args.loop,
                      fmt=args.format, kind=args.kind, beta=args.beta, h=args.h, bias=args.bias,
                      tau_obs=args.tau_obs, a_n=args.a_n, rate_hz=args.rate, start=args.start, stop=args.stop,
-                     log_fn=lambda s: eprint(f"session import: {s}"))
+                     bias_trim=args.bias_trim, log_fn=lambda s: eprint(f"session import: {s}"))
     if args.json:
         print_json(ans)
     else:

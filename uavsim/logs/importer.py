@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN, RELAY_KINDS
+from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN, RELAY_BIAS_TRIMS, RELAY_KINDS
 from uavsim.logs.errors import LogError, hint
 
 __all__ = ["FORMATS", "PRESETS", "LogError", "hint", "Preset", "FieldSpec", "detect_format", "parse_field", "read_series",
@@ -257,7 +257,7 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
                fmt: str | None = None, kind: str = NP_MRFT_RUN, beta: float | None = None, h: float | None = None,
                bias: float | None = None, tau_obs: float | None = None, a_n: float | None = None,
                rate_hz: float | None = None, start: float | None = None, stop: float | None = None,
-               run_file: str | None = None, log_fn=None) -> dict[str, Any]:
+               run_file: str | None = None, bias_trim: str = "off", log_fn=None) -> dict[str, Any]:
     """Turn a flight log into a session folder ``out`` with one relay run (see ``uavsim.logs``).
 
     Parameters
@@ -274,6 +274,8 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
     rate_hz : control rate (default: from u's median logging step)
     start, stop : window in the log's time, s (default: the detected relay segment)
     run_file : CSV name (default ``relay.csv``)
+    bias_trim : ``"duty"`` where the flight's relay trimmed its bias (docs/formats/session.md); its ``u`` then
+        holds more than two levels, so ``h``, ``bias`` (the bias it started at), ``start`` and ``stop`` are given
     log_fn : called with one line per finding (detected levels, window)
 
     Returns
@@ -303,6 +305,11 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
         raise LogError(f"--kind must be np-mrft or mrft (a relay run), got {kind!r}")
     if beta is None:
         raise LogError("--beta is required: the relay's beta cannot be read off the log")
+    if bias_trim not in RELAY_BIAS_TRIMS:
+        raise LogError(f"--bias-trim must be one of {', '.join(RELAY_BIAS_TRIMS)}, got {bias_trim!r}")
+    if bias_trim != "off" and any(v is None for v in (h, bias, start, stop)):
+        raise LogError("a trimmed relay's u moves between more than two levels: pass --h, --bias (the bias it "
+                       "started at), --start and --stop")
     if kind == NP_MRFT_RUN and (tau_obs is None or a_n is None):
         raise LogError("an np-mrft run needs --tau-obs and --a-n (the relay's settings in flight)")
     if not path.exists():
@@ -340,11 +347,12 @@ def import_log(log: str | os.PathLike, out: str | os.PathLike, *, preset: str | 
         raise LogError(f"--start {start} must be before --stop {stop}")
     grid, cols = sample_on_grid(series, rate_hz, start, stop, str(path))
     spec = RunSpec(file=run_file or "relay.csv", kind=kind, beta=float(beta), h=float(h), bias=float(bias),
-                   tau_obs=None if kind == MRFT_RUN else float(tau_obs), a_n=None if kind == MRFT_RUN else float(a_n))
+                   tau_obs=None if kind == MRFT_RUN else float(tau_obs), a_n=None if kind == MRFT_RUN else float(a_n),
+                   bias_trim=bias_trim)
     # session time starts at 0; the log time of the first sample is in the answer
     data = RunData(t=np.arange(grid.size) / rate_hz, r=cols["r"], y=cols["y"], u=cols["u"])
     folder = write_session(Session(loop=loop, control_rate_hz=float(rate_hz), runs=[Run(spec, data)]), out)
     return {"session": str(folder), "log": str(path), "format": fmt, "loop": loop, "rate_hz": float(rate_hz),
             "samples": int(grid.size), "start": float(start), "stop": float(stop), "fields": names,
             "run": {"file": spec.file, "kind": kind, "beta": spec.beta, "h": spec.h, "bias": spec.bias,
-                    "tau_obs": spec.tau_obs, "a_n": spec.a_n}, "detected": detected}
+                    "tau_obs": spec.tau_obs, "a_n": spec.a_n, "bias_trim": spec.bias_trim}, "detected": detected}
