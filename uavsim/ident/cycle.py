@@ -61,8 +61,9 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 #: relay bias of half h, even without noise: ``uavsim evaluate``), and identify as well as the others
 PHASE_LEAD_MAX_DEG = 70.0
 #: a network trained on bias-trimmed relays refuses a cycle whose duty error ``|2 d - 1|`` (about the relay
-#: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (noise at 10-20 %), and
-#: untrimmed runs beyond it were unstable answers in 1 of 10 to 3 of 10 (development seed 11)
+#: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (a trim not settled under
+#: 10-20 % noise; development seeds 11-13: 8 of 1800 trimmed runs refused so, which answered had J 1.13-2.3 and
+#: one unstable), and untrimmed runs beyond it were unstable answers in 1 of 10 to 3 of 10 (development seed 11)
 DUTY_LIMIT = 0.2
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
@@ -92,8 +93,11 @@ def saturation_refusal(y: np.ndarray) -> str | None:
 
 
 def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
-    """Why a cycle of relay states ``s`` (+-1, whole cycles) is not one a network trained on relays with
-    ``bias_trim`` knows (a trimmed relay's cycle is symmetric: duty error above ``DUTY_LIMIT``), or None."""
+    """Why a cycle is not one a network trained on relays with ``bias_trim`` knows, or None.
+
+    ``s``: the relay's state at each sample of whole cycles (> 0 at ``+h``). A trimmed relay's
+    cycle is symmetric: a duty error ``|2 d - 1|`` above ``DUTY_LIMIT`` is refused.
+    """
     s = np.asarray(s, dtype=np.float64)
     if bias_trim == "off" or s.size == 0:
         return None
@@ -101,7 +105,8 @@ def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
     if err <= DUTY_LIMIT:
         return None
     return (f"relay duty {float(np.mean(s > 0)):.2f} over the cycle (a bias of about {err:.2f} h): the network was "
-            "trained on relay runs that trim their bias; fly the run with bias_trim = \"duty\"")
+            "trained on relay runs that trim their bias to a symmetric cycle; fly the run with bias_trim = \"duty\" "
+            "and long enough for the trim to settle")
 
 
 def period_refusal(period: float, bounds: tuple[float, float]) -> str | None:

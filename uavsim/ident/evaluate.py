@@ -8,7 +8,9 @@ for the relay, randomization and preprocessing, and every noise kind at levels
 segment of the episode's own noise gives the first run's ``tau_obs`` and ``a_n``
 (``uavsim.noise.estimate.recommend``), refined from the runs before
 (``refine_batch``); the relay is never handed the true period or amplitude. The
-recipe must say ``settings = "recommended"``.
+recipe must say ``settings = "recommended"``. The relays start at the recipe's drawn
+bias (a hover-command error) and trim it where the recipe says (``[test] bias_trim``,
+``--bias-trim``), as a user's relay does.
 
 Each episode is identified exactly as a session is (``extract_cycle`` then
 ``identify_cycle`` on its raw traces). The figure is
