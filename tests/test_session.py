@@ -219,30 +219,21 @@ def test_round_trip_without_model_or_effects(tmp_path: Path) -> None:
     assert_same_session(s, back)
 
 
-def test_step_derivative_round_trip(tmp_path: Path) -> None:
-    # "measurement" is written and read back; "error" (what an absent key reads as) is not written
+@pytest.mark.parametrize(("run", "other", "key", "word", "default"),
+                         [(2, 0, "derivative", "measurement", "error"), (0, 1, "bias_trim", "duty", "off")])
+def test_optional_word_key_round_trip(tmp_path: Path, run: int, other: int, key: str, word: str,
+                                      default: str) -> None:
+    # a step run's derivative, a relay run's bias_trim: the word is written and read back; the default
+    # (what an absent key reads as) is not written
     s = awkward_session(n=10)
-    s.runs[2].spec.derivative = "measurement"
-    folder = write_session(s, tmp_path / "m")
-    assert 'derivative = "measurement"' in (folder / "session.toml").read_text()
+    setattr(s.runs[run].spec, key, word)
+    folder = write_session(s, tmp_path / "w")
+    assert f'{key} = "{word}"' in (folder / "session.toml").read_text()
     back = read_session(folder)
-    assert back.runs[2].spec.derivative == "measurement" and back.runs[0].spec.derivative == "error"
+    assert getattr(back.runs[run].spec, key) == word and getattr(back.runs[other].spec, key) == default
     assert_same_session(s, back)
-    s.runs[2].spec.derivative = "error"
-    assert "derivative =" not in (write_session(s, tmp_path / "e") / "session.toml").read_text()
-
-
-def test_relay_bias_trim_round_trip(tmp_path: Path) -> None:
-    # "duty" is written and read back on relay runs; "off" (what an absent key reads as) is not written
-    s = awkward_session(n=10)
-    s.runs[0].spec.bias_trim = "duty"
-    folder = write_session(s, tmp_path / "d")
-    assert 'bias_trim = "duty"' in (folder / "session.toml").read_text()
-    back = read_session(folder)
-    assert back.runs[0].spec.bias_trim == "duty" and back.runs[1].spec.bias_trim == "off"
-    assert_same_session(s, back)
-    s.runs[0].spec.bias_trim = "off"
-    assert "bias_trim =" not in (write_session(s, tmp_path / "o") / "session.toml").read_text()
+    setattr(s.runs[run].spec, key, default)
+    assert f"{key} =" not in (write_session(s, tmp_path / "d") / "session.toml").read_text()
 
 
 def test_round_trip_large_arrays(tmp_path: Path) -> None:
