@@ -63,7 +63,7 @@ PHASE_LEAD_MAX_DEG = 70.0
 #: a network trained on bias-trimmed relays refuses a cycle whose duty error ``|2 d - 1|`` (about the relay
 #: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (a trim not settled under
 #: 10-20 % noise; development seeds 11-13: 8 of 1800 trimmed runs refused so, which answered had J 1.13-2.3 and
-#: one unstable), and untrimmed runs beyond it were unstable answers in 1 of 10 to 3 of 10 (development seed 11)
+#: one unstable), and untrimmed runs beyond it failed (unstable or refused) 1 in 10 to 3 in 10 (development seed 11)
 DUTY_LIMIT = 0.2
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
