@@ -38,7 +38,7 @@ call it once per controller sample with the errors ``e`` (shape ``(n,)``).
 Ties do not move the extremum: a plateau (a quantized signal) is timed from
 its first sample, which is when it was reached.
 
-A relay run with ``bias_trim="duty"`` trims its own bias (:data:`BIAS_TRIMS`):
+A relay run with ``bias_trim="duty"`` trims its own bias (``RELAY_BIAS_TRIMS``):
 a constant disturbance at the input (a hover-thrust error, a trim offset) makes
 the cycle of an integrating loop asymmetric, with less amplitude for the same
 sensor noise, and under noise much less regular (a bias of 0.4 h at 10 % noise:
@@ -49,7 +49,7 @@ at every switch to ``+h`` the bias moves by half the last cycle's duty error
 by more than a sample. Within a few cycles the bias left is a sample of duty and
 the cycle is the bias-free one to that resolution. The recorded ``u`` carries the
 moving bias; :func:`relay_sign` and :func:`untrimmed` read the relay's states
-back from it.
+back from it, and :func:`relay_command` is how a run is read for identification.
 """
 
 from __future__ import annotations
@@ -65,8 +65,6 @@ from uavsim.formats.session import MRFT_RUN, NP_MRFT_RUN, RELAY_BIAS_TRIMS
 READINGS = (1, 2)
 #: the reading sessions are written with
 READING = 2
-#: relay bias trims: ``"off"`` (the bias stays as given) or ``"duty"`` (see :meth:`NPMRFT._trim`)
-BIAS_TRIMS = RELAY_BIAS_TRIMS
 #: a trimmed bias's move at a switch to +h, as a fraction of the last cycle's duty error
 TRIM_GAIN = 0.5
 #: largest move of a trimmed bias at one switch, in units of h: a switch to +h then moves
@@ -161,9 +159,10 @@ def tau_obs_limit(beta: float | np.ndarray, period: float | np.ndarray) -> np.nd
 
 
 def check_bias_trim(bias_trim: str) -> str:
-    """``bias_trim`` if it is one of :data:`BIAS_TRIMS`, else ``UserError``."""
-    if bias_trim not in BIAS_TRIMS:
-        raise UserError(f"relay bias_trim must be one of {', '.join(BIAS_TRIMS)}, got {bias_trim!r}")
+    """``bias_trim`` if it is one of ``RELAY_BIAS_TRIMS`` (``"off"``: the bias stays; ``"duty"``:
+    :meth:`NPMRFT._trim`), else ``UserError``."""
+    if bias_trim not in RELAY_BIAS_TRIMS:
+        raise UserError(f"relay bias_trim must be one of {', '.join(RELAY_BIAS_TRIMS)}, got {bias_trim!r}")
     return bias_trim
 
 
@@ -194,6 +193,12 @@ def untrimmed(u: np.ndarray, h: float | np.ndarray, bias: float | np.ndarray) ->
     """
     h_ = np.asarray(h, dtype=np.float64)[..., None]
     return relay_sign(u, h, bias) * h_ + np.asarray(bias, dtype=np.float64)[..., None]
+
+
+def relay_command(u: np.ndarray, h: float | np.ndarray, bias: float | np.ndarray, bias_trim: str) -> np.ndarray:
+    """A relay run's command ``u`` (..., T) as the preprocessing reads it: a trimmed run's (``bias_trim``
+    ``"duty"``) as :func:`untrimmed`, any other as recorded. Generation, evaluation and sessions read runs so."""
+    return u if bias_trim == "off" else untrimmed(u, h, bias)
 
 
 def guard_fraction(beta: float | np.ndarray) -> np.ndarray:
@@ -437,8 +442,6 @@ class NPMRFT:
         # passes a third of the noise's variance. The first cycles (start-up, where e = 0 can
         # chatter) are not trimmed from.
         rows = sw & (self.sign > 0) & (self.n_sw >= TRIM_AFTER_SWITCHES)
-        if not rows.any():
-            return
         rows &= np.abs(self.half[1] - self.half[0]) > TRIM_DEADBAND
         if not rows.any():
             return

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from uavsim.control.relay import NPMRFT, untrimmed
+from uavsim.control.relay import NPMRFT, relay_command
 from uavsim.data import preprocess
 from uavsim.data.noise_trace import NoiseTrace
 from uavsim.data.plan import HOVER_S, STAGE_SETTLE, Plan, load_family_grid, make_plan
@@ -178,7 +178,7 @@ def run_episodes(params: list[LumpedParams], plan: Plan, ids: np.ndarray, durati
     res = lb.run(ctrl, duration_s)
     relay = ctrl.relay if isinstance(ctrl, RefiningRelay) else ctrl
     resp: dict[str, np.ndarray] = {}
-    u = untrimmed(res.u, r.test.h, plan.bias[ids]) if r.test.bias_trim != "off" else res.u
+    u = relay_command(res.u, r.test.h, plan.bias[ids], r.test.bias_trim)
     X, period, amp, ok = preprocess.features_batch(
         np.nan_to_num(res.y), u, r.episodes.rate_hz, np.full(m, r.test.h), plan.bias[ids], plan.L,
         cycles=r.preprocess.cycles, response=resp)

@@ -112,7 +112,7 @@ class TestSpec:
     a_n : float
         Fixed settings: NP-MRFT ``a_n`` relative to the episode's noise amplitude, >= 0.
     bias_trim : str
-        ``"off"`` or ``"duty"`` (``uavsim.control.relay.BIAS_TRIMS``).
+        ``"off"`` or ``"duty"`` (``uavsim.formats.session.RELAY_BIAS_TRIMS``).
     """
 
     beta: float | None = None

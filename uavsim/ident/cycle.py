@@ -101,10 +101,11 @@ def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
     s = np.asarray(s, dtype=np.float64)
     if bias_trim == "off" or s.size == 0:
         return None
-    err = abs(float(np.mean(s > 0)) * 2.0 - 1.0)
+    duty = float(np.mean(s > 0))
+    err = abs(2.0 * duty - 1.0)
     if err <= DUTY_LIMIT:
         return None
-    return (f"relay duty {float(np.mean(s > 0)):.2f} over the cycle (a bias of about {err:.2f} h): the network was "
+    return (f"relay duty {duty:.2f} over the cycle (a bias of about {err:.2f} h): the network was "
             "trained on relay runs that trim their bias to a symmetric cycle; fly the run with bias_trim = \"duty\" "
             "and long enough for the trim to settle")
 

@@ -72,7 +72,7 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import check_bias_trim, untrimmed
+from uavsim.control.relay import check_bias_trim, relay_command
 from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
@@ -123,7 +123,7 @@ class EvalSpec:
     second_beta : a second relay run at this ``beta`` on every process (its own settings from the hover,
         the same sensor noise in output units), whose measured point weighs the belief
         (``uavsim.ident.twopoint``); None: one run, the paper's method
-    bias_trim : the relays' bias trim (``uavsim.control.relay.BIAS_TRIMS``); None: the recipe's
+    bias_trim : the relays' bias trim (``uavsim.formats.session.RELAY_BIAS_TRIMS``); None: the recipe's
     """
 
     loop: str = "altitude"
@@ -210,16 +210,14 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
            "tau_obs": np.zeros(n), "a_n": np.zeros(n)}
     rec = replace(recipe, preprocess=replace(recipe.preprocess, keep_raw=True))
     t0 = time.perf_counter()
-    trimmed = recipe.test.bias_trim != "off"
     for j, i0 in enumerate(range(0, n, chunk)):
         idx = order[i0 : i0 + chunk]
         _, _, _, _, m = simulate_features([params[i] for i in idx], rec, seed * 1000 + j,
                                           noise=(noise[0][idx], noise[1][idx]))
         for k, i in enumerate(idx):
-            u = m["u"][k].astype(np.float64)
-            # a trimmed run is read by its relay states at the drawn bias, as a session's is
             out["y"][i] = np.nan_to_num(m["y"][k].astype(np.float64))
-            out["u"][i] = untrimmed(u, recipe.test.h, m["bias"][k]) if trimmed else u
+            # a trimmed run is read by its relay states at the drawn bias, as a session's is
+            out["u"][i] = relay_command(m["u"][k].astype(np.float64), recipe.test.h, m["bias"][k], recipe.test.bias_trim)
         for key in ("bias", "diverged", "tau_obs", "a_n"):
             out[key][idx] = m[key]
         log(f"simulated {min(i0 + chunk, n)}/{n} episodes ({time.perf_counter() - t0:.0f} s)")

@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import untrimmed
+from uavsim.control.relay import relay_command
 from uavsim.data.preprocess import CycleFeatures
 from uavsim.errors import NoOscillation, UserError
-from uavsim.formats.session import RELAY_KINDS, RunSpec
+from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
@@ -264,12 +264,14 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
             raise UserError(f"session {path}: the second run {second_run} must be at another beta than the "
                             f"network's ({b.rule.beta:g}), got {r2.spec.beta}")
         try:
-            second = second_cycle(r2.data.y, relay_command(r2.spec, r2.data.u), rate_hz=s.control_rate_hz,
-                                  h=float(r2.spec.h), bias=float(r2.spec.bias or 0.0), cycles=b.cycles)
+            h2, b2 = float(r2.spec.h), float(r2.spec.bias or 0.0)
+            second = second_cycle(r2.data.y, relay_command(r2.data.u, h2, b2, r2.spec.bias_trim),
+                                  rate_hz=s.control_rate_hz, h=h2, bias=b2, cycles=b.cycles)
         except NoOscillation as exc:
             raise UserError(f"session {path}: second run {second_run}: {exc}") from None
-    ans = identify_arrays(r.data.y, relay_command(r.spec, r.data.u), rate_hz=s.control_rate_hz, h=float(r.spec.h),
-                          bias=float(r.spec.bias or 0.0), bundle=b, beta=r.spec.beta, optimum=optimum,
+    h, bias = float(r.spec.h), float(r.spec.bias or 0.0)
+    ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim), rate_hz=s.control_rate_hz,
+                          h=h, bias=bias, bundle=b, beta=r.spec.beta, optimum=optimum,
                           attitude=attitude, decision=decision, guard=guard, second=second)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
@@ -282,14 +284,6 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     # NP-MRFT a_n is a noise amplitude (2 std for Gaussian noise, uavsim.noise.models)
     ans["noise_std"] = float(r.spec.a_n or 0.0) / 2.0
     return ans
-
-
-def relay_command(spec: RunSpec, u: np.ndarray) -> np.ndarray:
-    """A relay run's command ``u`` (T,) as identification reads it: a trimmed run's (``bias_trim``) as the relay
-    of constant bias in the same states (``uavsim.control.relay.untrimmed``), any other as recorded."""
-    if spec.bias_trim == "off":
-        return u
-    return untrimmed(u, float(spec.h), float(spec.bias or 0.0))
 
 
 def write_model(path: str | os.PathLike, ans: dict[str, Any], *, overwrite: bool = False) -> Path:
