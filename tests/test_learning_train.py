@@ -174,3 +174,25 @@ def test_export_folds_batchnorm_exactly(tmp_path):
         np.testing.assert_allclose(p0.activations(x.numpy()), net0.eval()(x).numpy(), rtol=1e-5, atol=1e-5)
     assert p0.numpy_layers is not None and p0.numpy_layers["rbf"] is None
     assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in net.fold_batchnorm().modules())
+
+
+def test_numpy_forward_skips_the_zero_padding_exactly(tmp_path):
+    """Right-aligned, zero-padded inputs (cycles of any length, an empty one): the numpy chain's first layer
+    over the cycle's samples only gives the TorchScript network's outputs."""
+    from _learning_fixtures import trained_like_net
+
+    from uavsim.learning.export import export_model
+
+    net = trained_like_net()
+    export_model(net, {"channels": 2, "input_length": 40, "n_classes": 5, "loop": "altitude"}, tmp_path)
+    pred = Predictor(tmp_path)
+    assert pred.numpy_layers is not None and pred.numpy_layers["rbf"] is not None
+    rng = np.random.default_rng(0)
+    x = np.zeros((4, 2, 40), dtype=np.float32)
+    for i, n in enumerate((40, 31, 9, 0)):  # a full input, two padded ones, an all-zero one
+        x[i, :, 40 - n:] = rng.standard_normal((2, n))
+    with torch.inference_mode():
+        want = pred.module(torch.from_numpy(x)).numpy()
+    np.testing.assert_allclose(pred.activations(x), want, rtol=1e-5, atol=1e-5)
+    for i in range(4):  # one input at a time: the skipped columns are that input's own padding
+        np.testing.assert_allclose(pred.activations(x[i]), want[i : i + 1], rtol=1e-5, atol=1e-5)

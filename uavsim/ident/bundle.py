@@ -39,6 +39,8 @@ with ``altitude/``, ``attitude/`` and ``lateral/aNN/``; the default root is
 
 from __future__ import annotations
 
+import functools
+
 import math
 import os
 from dataclasses import dataclass, field
@@ -133,6 +135,13 @@ class ModelBundle:
     @property
     def n_classes(self) -> int:
         return int(self.predictor.n_classes)
+
+    @functools.cached_property
+    def log_cost(self) -> np.ndarray | None:
+        """``log`` of the clipped ``cost`` (``uavsim.learning.decision.log_cost``), (n, n), computed once."""
+        from uavsim.learning.decision import log_cost
+
+        return None if self.cost is None else log_cost(self.cost, self.n_classes)
 
     @property
     def has_table(self) -> bool:

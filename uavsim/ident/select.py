@@ -154,7 +154,8 @@ def decide_class(bundle: ModelBundle, activations: np.ndarray, *, decision: str 
     if decision == "bayes" and bundle.cost is None:
         raise UserError(f"{bundle.dir}: exported without the cost matrix J (weights.npz) the Bayes decision "
                         "needs: retrain, or decide by argmax")
-    return decide(activations, bundle.cost, decision=decision or bundle.decision, temperature=bundle.temperature)
+    return decide(activations, bundle.cost, decision=decision or bundle.decision, temperature=bundle.temperature,
+                  log_J=bundle.log_cost)
 
 
 def _belief(bundle: ModelBundle, activations, response, response_period, name: str):
@@ -168,7 +169,7 @@ def _belief(bundle: ModelBundle, activations, response, response_period, name: s
     per = np.atleast_1d(np.asarray(response_period, dtype=np.float64))
     if resp.shape != (p.shape[0],) or per.shape != (p.shape[0],):
         raise UserError(f"{p.shape[0]} inputs, {resp.size} responses and {per.size} periods")
-    ec = expected_cost(p, bundle.cost)
+    ec = expected_cost(p, log_J=bundle.log_cost)
     return p, resp, per, ec
 
 

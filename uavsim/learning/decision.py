@@ -105,13 +105,18 @@ def log_cost(J: np.ndarray, n: int | None = None) -> np.ndarray:
     return np.log(clip_cost(J))
 
 
-def expected_cost(p: np.ndarray, J: np.ndarray) -> np.ndarray:
+def expected_cost(p: np.ndarray, J: np.ndarray | None = None, *, log_J: np.ndarray | None = None) -> np.ndarray:
     """Expected log of the clipped J of answering each class, ``sum_j p_j log J[i, j]``.
 
-    (m, n) from ``p`` (m, n) and ``J`` (n, n).
+    (m, n) from ``p`` (m, n) and ``J`` (n, n), or ``log_J`` (``log_cost(J)``, n x n) where
+    the caller keeps it (one identification: the log of a 208 x 208 J costs more than the product).
     """
     p = np.atleast_2d(np.asarray(p, dtype=np.float64))
-    return p @ log_cost(J, p.shape[1]).T
+    if log_J is None:
+        log_J = log_cost(J, p.shape[1])
+    elif log_J.shape != (p.shape[1], p.shape[1]):
+        raise UserError(f"log cost matrix has shape {log_J.shape}, the network has {p.shape[1]} classes")
+    return p @ log_J.T
 
 
 def fit_temperature(activations: np.ndarray, labels: np.ndarray) -> float:
@@ -139,7 +144,7 @@ def fit_temperature(activations: np.ndarray, labels: np.ndarray) -> float:
 
 
 def decide(activations: np.ndarray, J: np.ndarray | None = None, *, decision: str = "bayes",
-           temperature: float = 1.0) -> Decision:
+           temperature: float = 1.0, log_J: np.ndarray | None = None) -> Decision:
     """The class of each input (module docstring); ``J`` None allows only ``argmax``.
 
     Parameters
@@ -151,6 +156,8 @@ def decide(activations: np.ndarray, J: np.ndarray | None = None, *, decision: st
     decision : ``"bayes"`` or ``"argmax"``
     temperature : float
         ``T`` of the belief ``softmax(a / T)`` (``fit_temperature``); argmax does not depend on it.
+    log_J : (n, n) or None
+        ``log_cost(J)`` where the caller keeps it (``expected_cost``).
     """
     if decision not in DECISIONS:
         raise UserError(f"decision must be one of {', '.join(DECISIONS)}, got {decision!r}")
@@ -163,6 +170,6 @@ def decide(activations: np.ndarray, J: np.ndarray | None = None, *, decision: st
                             "or decide by argmax)")
         cls = p.argmax(axis=1).astype(np.int64)
         return Decision(cls, np.full(cls.size, np.nan), p, decision)
-    cost = expected_cost(p, J)
+    cost = expected_cost(p, J, log_J=log_J)
     cls = (cost.argmin(axis=1) if decision == "bayes" else p.argmax(axis=1)).astype(np.int64)
     return Decision(cls, np.exp(cost[np.arange(cls.size), cls]), p, decision)

@@ -323,19 +323,28 @@ def _numpy_layers(module, meta: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def _forward_numpy(net: dict[str, Any], x: np.ndarray) -> np.ndarray:
-    """``IdentNet.forward`` of the folded network in numpy: x (B, C, L) float32 -> (B, n_classes) float32."""
-    flat = x.reshape(x.shape[0], -1)
+    """``IdentNet.forward`` of the folded network in numpy: x (B, C, L) float32 -> (B, n_classes) float32.
+
+    The inputs are right-aligned and zero-padded (``uavsim.data.preprocess``), so the first
+    layer multiplies only the columns from the first non-zero sample of the batch on, per
+    channel: the same sum without its zero terms (a cycle half the input's length halves the
+    largest matmul; float32 rounding may differ in the last bits from the full product).
+    """
+    B, C, L = x.shape
+    nz = np.flatnonzero(x.any(axis=(0, 1)))
+    s = int(nz[0]) if nz.size else L
+    (W0, b0), rest = net["layers"][0], net["layers"][1:]
+    h = np.broadcast_to(b0, (B, b0.size)).copy()
+    for ch in range(C):
+        h += x[:, ch, s:] @ W0[ch * L + s : (ch + 1) * L]
     if net["rbf"] is not None:
         c, w = net["rbf"]
         n = np.log(np.maximum(np.abs(x[:, -1, :]).sum(axis=1), np.float32(1.0)))
-        flat = np.concatenate([flat, np.exp(np.float32(-0.5) * ((n[:, None] - c[None, :]) / w) ** 2)], axis=1)
-    h = flat
-    last = len(net["layers"]) - 1
-    for j, (W, b) in enumerate(net["layers"]):
+        h += np.exp(np.float32(-0.5) * ((n[:, None] - c[None, :]) / w) ** 2) @ W0[C * L :]
+    for W, b in rest:
+        np.maximum(h, np.float32(0.0), out=h)
         h = h @ W
         h += b
-        if j < last:
-            np.maximum(h, np.float32(0.0), out=h)
     return h
 
 
