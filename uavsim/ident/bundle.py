@@ -40,7 +40,6 @@ with ``altitude/``, ``attitude/`` and ``lateral/aNN/``; the default root is
 from __future__ import annotations
 
 import functools
-
 import math
 import os
 from dataclasses import dataclass, field
