@@ -581,3 +581,43 @@ def test_guard_backs_off_only_a_pd_the_measured_process_cannot_hold():
         J_hot, J_guarded = (_score("attitude", 200.0, truth, q_opt, np.array([j]), f * hot["kp"], f * hot["kd"],
                                    hot["derivative_filter_hz"])[0] for f in (1.0, s[0]))
         assert np.isfinite(J_guarded) and J_guarded < J_hot
+
+
+def test_belief_guard_backs_off_a_pd_the_belief_s_other_classes_cannot_hold():
+    """The answer is a wrong class (the belief also holds the true class at 0.3): a PD 1.6 times the
+    true class's table PD (J 1.15 to unstable on the truth) is backed off by what the true class's fitted
+    model with 7.5 degrees more lag holds, to a J within 7 % of the optimum; the table PD itself is backed
+    off less. A belief under ``GUARD_BELIEF_MIN`` and a loop without a belief phase check nothing."""
+    from dataclasses import replace as dc_replace
+
+    from uavsim.ident.evaluate import _score
+    from uavsim.ident.gains import fitted_model, table_gains
+    from uavsim.ident.guard import GUARD_BELIEF_MIN, answer_guard, belief_guard_scale
+    from uavsim.ident.session import identify_arrays
+
+    g, b, cs, truth, sim, q_opt = _attitude_cycles(11)
+    for j, c in enumerate(cs):
+        b.predictor.cls = int(c)
+        ans = identify_arrays(-sim["e"][j], sim["u"][j], rate_hz=200.0, h=1.0, bias=0.0, bundle=b, beta=g.beta,
+                              guard=False)
+        resp = ans["response"]["gain"] * np.exp(1j * np.radians(ans["response"]["phase_deg"]))
+        per = 2 * np.pi / ans["response"]["omega"]
+        other = int((c + 7) % g.n)
+        p = np.zeros(g.n)
+        p[other], p[c] = 0.7, 0.3
+        t = table_gains(b, [c], fitted_model(b, [c], np.array([resp]), np.array([per]))["K"])
+        hot = {k: float(1.6 * t[k][0]) for k in ("kp", "kd")}
+        fhz = float(t["derivative_filter_hz"][0])
+        s, top = belief_guard_scale(b, p, other, resp, per, derivative_filter_hz=fhz, **hot)
+        assert top == [int(c)] and s < 1.0
+        J_hot, J_guarded = (_score("attitude", 200.0, truth, q_opt, np.array([j]), f * hot["kp"], f * hot["kd"], fhz)[0]
+                            for f in (1.0, s))
+        assert J_hot > 1.1 and J_guarded < 1.07
+        same = {k: float(t[k][0]) for k in ("kp", "kd")}
+        assert belief_guard_scale(b, p, other, resp, per, derivative_filter_hz=fhz, **same)[0] > s
+        gd = answer_guard(b, p, other, resp, per, derivative_filter_hz=fhz, **hot)
+        assert gd["scale"] == min(gd["own_scale"], gd["belief_scale"]) and gd["belief_classes"] == [int(c)]
+        p[other], p[c] = 1.0 - 0.5 * GUARD_BELIEF_MIN, 0.5 * GUARD_BELIEF_MIN
+        assert belief_guard_scale(b, p, other, resp, per, derivative_filter_hz=fhz, **hot) == (1.0, [])
+        assert belief_guard_scale(dc_replace(b, loop="lateral"), p, other, resp, per, derivative_filter_hz=fhz,
+                                  **hot) == (1.0, [])

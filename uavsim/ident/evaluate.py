@@ -78,10 +78,10 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
-from uavsim.ident.guard import guard_scale
+from uavsim.ident.guard import answer_guard
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle, second_cycle
-from uavsim.learning.decision import decide
+from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
 __all__ = ["LEVELS", "DETUNE", "GOALS", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
@@ -354,9 +354,11 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
         tkp, tkd, tfhz = (col("gains_table", k) for k in ("kp", "kd", "derivative_filter_hz"))
         if all("guard" in ans[i] for i in gi):
             s_g = np.array([ans[i]["guard"]["scale"] for i in gi])
-        else:
-            s_g = guard_scale(bundle, [ans[i]["class"] for i in gi], ids["response"][gi], ids["response_period"][gi],
-                              kp=tkp, kd=tkd, derivative_filter_hz=tfhz)
+        else:  # the belief from the first run's activations (a second run's weighing is not kept here)
+            pb = softmax(ids["act"][gi], bundle.temperature)
+            s_g = np.array([answer_guard(bundle, pb[k], ans[i]["class"], ids["response"][i], ids["response_period"][i],
+                                         kp=tkp[k], kd=tkd[k], derivative_filter_hz=tfhz[k])["scale"]
+                            for k, i in enumerate(gi)])
         J["answer_guarded"][gi] = _score(fam, rate, truth, q_opt, gi, s_g * tkp, s_g * tkd, tfhz)
     J["rule_on_truth"] = _score(fam, rate, truth, q_opt, np.arange(n), rule_gains["kp"], rule_gains["kd"],
                                 rule_gains["derivative_filter_hz"])

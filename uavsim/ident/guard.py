@@ -27,8 +27,24 @@ sets of development seeds 11-13 (attitude 1.48 / 2.18 / 1.21 -> 1.15 / 1.27 / 1.
 unstable answers 24 -> 12, for medians up to 0.007 higher: it is on by default for the loops
 in ``DEFAULT_GUARD``. Cost: one lifted loop and ``len(GUARD_SCALES)`` ISEs (about 1 ms).
 
-    from uavsim.ident.guard import guard_scale
+The answer's own model cannot see a wrong class: the tail that remained (attitude, development
+seeds 11-13) was answers whose class fits the measured point but not the process, with the
+network's belief split over neighbours (softmax 0.3-0.7 on the first). The guard therefore also
+closes the answer's PD on the fitted models of the belief's ``GUARD_BELIEFS`` other most likely
+classes holding at least ``GUARD_BELIEF_MIN`` (``belief_guard_scale``), each with
+``GUARD_BELIEF_PHASE_DEG`` more lag, and answers the least factor (``answer_guard``). Chosen on
+development seeds 11-13 (300 processes each, docs/results/identification.md): attitude at 7.5 deg
+took the p95 1.153 / 1.270 / 1.122 -> 1.157 / 1.133 / 1.129, the max 2.62 / 2.92 / 1.47 -> 1.46 /
+1.42 / 1.38 and the unstable answers 11 -> 5, for medians 1.021 / 1.019 / 1.020 -> 1.026 / 1.023 /
+1.029 (5 deg: p95 1.152 / 1.174 / 1.112, 6 unstable; 10 deg: medians 1.046-1.054); altitude at 5
+deg left the median and p95 within 0.003 and the max 1.64 -> 1.45 on seed 13 (7.5 deg raised its
+medians 0.004-0.007 over the goal's 1.03). Cost: up to ``GUARD_BELIEFS`` more lifted loops and their
+ISEs (about 2 ms).
+
+    from uavsim.ident.guard import answer_guard, guard_scale
     s = guard_scale(bundle, cls, response, response_period, kp=kp, kd=kd, derivative_filter_hz=fhz)   # (m,)
+    g = answer_guard(bundle, p, c, response, period, kp=kp0, kd=kd0, derivative_filter_hz=f0)   # one answer
+    g["scale"], g["belief_classes"]
 """
 
 from __future__ import annotations
@@ -37,7 +53,8 @@ import numpy as np
 
 from uavsim.ident.bundle import ModelBundle
 
-__all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "default_guard", "guard_scale"]
+__all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "GUARD_BELIEFS", "GUARD_BELIEF_MIN",
+           "GUARD_BELIEF_PHASE_DEG", "default_guard", "guard_scale", "belief_guard_scale", "answer_guard"]
 
 #: the loops whose identification applies the guard unless told otherwise (module docstring)
 DEFAULT_GUARD: dict[str, bool] = {"altitude": True, "attitude": True, "lateral": False}
@@ -48,6 +65,13 @@ GUARD_PHASE_DEG = 5.0
 GUARD_RATIO = 2.0
 #: factors of ``kp`` and ``kd`` tried, largest first (1: the answer unchanged)
 GUARD_SCALES = (1.0, 0.97, 0.94, 0.91, 0.88, 0.85, 0.82, 0.79, 0.76, 0.73, 0.7, 0.65, 0.6, 0.55, 0.5)
+#: the belief's most likely classes besides the answer's whose fitted models the answer must also hold
+GUARD_BELIEFS = 4
+#: ... those of them with at least this softmax
+GUARD_BELIEF_MIN = 0.05
+#: extra phase lag those models are taken with, degrees, per loop (a loop not named: no belief check;
+#: the lateral ``stable`` decision closes its PDs on the belief's models itself)
+GUARD_BELIEF_PHASE_DEG: dict[str, float] = {"altitude": 5.0, "attitude": 7.5}
 
 
 def default_guard(loop: str, guard: bool | None) -> bool:
@@ -104,3 +128,48 @@ def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, 
     # the largest factor that holds; none (no factor keeps the perturbed loop stable): the answer as it was
     out[idx] = np.where(holds.any(axis=1), sc[np.argmax(holds, axis=1)], 1.0)
     return out
+
+
+def belief_guard_scale(bundle: ModelBundle, p, cls: int, response: complex, response_period: float, *, kp: float,
+                       kd: float, derivative_filter_hz: float, attitude: dict[str, float] | None = None,
+                       beliefs: int = GUARD_BELIEFS, p_min: float = GUARD_BELIEF_MIN,
+                       phase_deg: float | None = None) -> tuple[float, list[int]]:
+    """The factor of one answer's PD that the belief's other likely classes' fitted models hold, and those classes.
+
+    ``guard_scale`` of the answer's PD on the fitted models (``fitted_model`` at the measured point)
+    of the ``beliefs`` most likely classes of ``p`` (n,) other than ``cls`` with at least ``p_min``,
+    each with ``phase_deg`` more lag (None: ``GUARD_BELIEF_PHASE_DEG`` of the loop; a loop without an
+    entry: factor 1, no class); the least of their factors.
+    """
+    from uavsim.ident.gains import fitted_model
+
+    if phase_deg is None:
+        phase_deg = GUARD_BELIEF_PHASE_DEG.get(bundle.loop)
+    p = np.asarray(p, dtype=np.float64).ravel()
+    if phase_deg is None or beliefs <= 0:
+        return 1.0, []
+    top = [int(j) for j in np.argsort(-p, kind="stable")[: beliefs + 1] if j != cls and p[j] >= p_min][:beliefs]
+    if not top:
+        return 1.0, []
+    k = len(top)
+    resp, per = np.full(k, complex(response)), np.full(k, float(response_period))
+    model = fitted_model(bundle, top, resp, per, attitude=attitude)
+    s = guard_scale(bundle, top, resp, per, kp=np.full(k, float(kp)), kd=np.full(k, float(kd)),
+                    derivative_filter_hz=np.full(k, float(derivative_filter_hz)), model=model, phase_deg=phase_deg)
+    return float(s.min()), top
+
+
+def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_period: float, *, kp: float,
+                 kd: float, derivative_filter_hz: float, model: dict[str, np.ndarray] | None = None,
+                 attitude: dict[str, float] | None = None) -> dict:
+    """The guard of one answer (module docstring): the least of its own model's factor and the belief's.
+
+    Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``, ``belief_scale``,
+    ``belief_classes``, ``belief_phase_deg``.
+    """
+    own = float(guard_scale(bundle, [cls], [response], [response_period], kp=[kp], kd=[kd],
+                            derivative_filter_hz=[derivative_filter_hz], model=model)[0])
+    bel, top = belief_guard_scale(bundle, p, cls, response, response_period, kp=kp, kd=kd,
+                                  derivative_filter_hz=derivative_filter_hz, attitude=attitude)
+    return {"scale": min(own, bel), "phase_deg": GUARD_PHASE_DEG, "own_scale": own, "belief_scale": bel,
+            "belief_classes": top, "belief_phase_deg": GUARD_BELIEF_PHASE_DEG.get(bundle.loop)}

@@ -47,7 +47,7 @@ from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
-from uavsim.ident.guard import GUARD_PHASE_DEG, default_guard, guard_scale
+from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
@@ -144,9 +144,11 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     ans["gains_table"] = _floats(g_tab)
     if guard:
         t0 = time.perf_counter()
-        s = float(guard_scale(bundle, [c], [f.response], [f.response_period], kp=g_tab["kp"], kd=g_tab["kd"],
-                              derivative_filter_hz=g_tab["derivative_filter_hz"], model=model)[0])
-        ans["guard"] = {"scale": s, "phase_deg": GUARD_PHASE_DEG, "latency_ms": 1e3 * (time.perf_counter() - t0)}
+        gd = answer_guard(bundle, dec.p[0], c, f.response, f.response_period, kp=float(g_tab["kp"][0]),
+                          kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
+                          model=model, attitude=attitude)
+        s = gd["scale"]
+        ans["guard"] = {**gd, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
     ans["off_grid"] = bool(off)
     if optimum == "always" or (optimum == "auto" and off):
