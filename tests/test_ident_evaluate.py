@@ -91,6 +91,10 @@ def test_cli_small_run(three_model, tmp_path):  # noqa: F811 (fixture)
     for e in full["episodes"]:
         if e["class"] is not None:
             assert e["decision"]["decision"] == "blend" and e["J"]["answer_blend"] == e["J"]["answer"]
+            # the guard the answer took, as identification reported it (the inner loops' default: on)
+            g = e["guard"]
+            assert g["scale"] == min(g["own_scale"], g["belief_scale"]) and 0.5 <= g["scale"] <= 1.0
+            assert e["J"]["answer_guarded"] == e["J"]["answer"] and "latency_ms" not in g
     assert "| answer |" in md.read_text()
     bad = tmp_path / "fixed.toml"
     bad.write_text((ROOT / "datasets" / "small.toml").read_text().replace('settings = "recommended"',

@@ -551,6 +551,8 @@ def _episodes(per: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          "refused": p["why"][i], "class": None if a is None else a["class"],
                          "K_hat": None if a is None else a["table"]["K_hat"],
                          "decision": None if a is None else a["decision"],
+                         "guard": None if a is None or "guard" not in a else
+                         {k: v for k, v in a["guard"].items() if k != "latency_ms"},
                          "J": {k: None if a is None and k.startswith("answer") else _json_j(v[i])
                                for k, v in p["J"].items()}})
     return rows
