@@ -226,7 +226,8 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
 
 
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
-             cycles: int = 1, steady_tol: float | None = None, inputs: str = "last") -> CycleFeatures:
+             cycles: int = 1, steady_tol: float | None = None, inputs: str = "last",
+             harmonics: bool = True) -> CycleFeatures:
     """Network input from one relay test.
 
     Parameters
@@ -254,6 +255,8 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         only) ``x`` stays the last cycle and ``looks`` holds every response cycle as its own
         one-cycle input (the last one is ``x``). Both take the response cycles after the last
         one longer than ``L``, if any (the last cycle always fits).
+    harmonics : bool
+        Measure ``harmonics_y`` and ``harmonics_u`` (None without: identification does not use them).
 
     Raises
     ------
@@ -319,7 +322,8 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     re = edges[-1 - m:]
     ty, tu = cycle_harmonic_terms(y, re), cycle_harmonic_terms(s, re)  # each cycle's own fundamental
     yh, uh = mean_over_cycles(ty)[0], mean_over_cycles(tu)[0]
-    hy, hu = waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m)
+    hy, hu = (waveform_harmonics(np.stack([y, s]), int(re[0]), int(re[-1]), (re[-1] - re[0]) / m) if harmonics
+              else (None, None))
     response = complex(yh / (h * uh))
     each = ty[:, 0] / (h * tu[:, 0])
     with np.errstate(all="ignore"):

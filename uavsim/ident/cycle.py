@@ -184,7 +184,7 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
 
     def checked(stop: int, tol: float | None) -> CycleFeatures:
         f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol,
-                     inputs=inputs)
+                     inputs=inputs, harmonics=False)
         why = (saturation_refusal(y[f.start : f.stop])
                or duty_refusal(pos[f.start : f.stop], bundle.bias_trim)
                or period_refusal(f.period, bundle.period_bounds())
