@@ -38,8 +38,8 @@ took the p95 1.153 / 1.270 / 1.122 -> 1.157 / 1.133 / 1.129, the max 2.62 / 2.92
 1.42 / 1.38 and the unstable answers 11 -> 5, for medians 1.021 / 1.019 / 1.020 -> 1.026 / 1.023 /
 1.029 (5 deg: p95 1.152 / 1.174 / 1.112, 6 unstable; 10 deg: medians 1.046-1.054); altitude at 5
 deg left the median and p95 within 0.003 and the max 1.64 -> 1.45 on seed 13 (7.5 deg raised its
-medians 0.004-0.007 over the goal's 1.03). Cost: up to ``GUARD_BELIEFS`` more lifted loops and their
-ISEs (about 2 ms).
+medians 0.004-0.007 over the goal's 1.03). Cost: up to ``GUARD_BELIEFS`` more fitted models closed in
+the same batch as the answer's own (about 1 ms more).
 
     from uavsim.ident.guard import answer_guard, guard_scale
     s = guard_scale(bundle, cls, response, response_period, kp=kp, kd=kd, derivative_filter_hz=fhz)   # (m,)
@@ -80,7 +80,7 @@ def default_guard(loop: str, guard: bool | None) -> bool:
 
 
 def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, derivative_filter_hz,
-                phase_deg: float = GUARD_PHASE_DEG, ratio: float = GUARD_RATIO,
+                phase_deg: float | np.ndarray = GUARD_PHASE_DEG, ratio: float = GUARD_RATIO,
                 scales=GUARD_SCALES, model: dict[str, np.ndarray] | None = None) -> np.ndarray:
     """The factor of each answer's ``kp`` and ``kd`` (module docstring), (m,) float64 in ``scales``.
 
@@ -93,7 +93,8 @@ def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, 
     kp, kd, derivative_filter_hz : (m,) float
         The answers' PDs (``table_gains`` of ``cls`` over the fitted gain), filter in Hz.
     phase_deg, ratio, scales
-        The margin, the ISE ratio a factor must keep, the factors (largest first).
+        The margin (a scalar, or one per answer), the ISE ratio a factor must keep, the factors
+        (largest first).
     model : dict or None
         The answers' fitted models where the caller has them (``fitted_model`` of ``cls``,
         e.g. with the flight's attitude loop); None: fitted here with the bundle's.
@@ -130,46 +131,59 @@ def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, 
     return out
 
 
+def _belief_classes(bundle: ModelBundle, p, cls: int, beliefs: int, p_min: float) -> list[int]:
+    """The ``beliefs`` most likely classes of ``p`` (n,) other than ``cls`` with at least ``p_min``;
+    none for a loop without a ``GUARD_BELIEF_PHASE_DEG``."""
+    if bundle.loop not in GUARD_BELIEF_PHASE_DEG or beliefs <= 0:
+        return []
+    p = np.asarray(p, dtype=np.float64).ravel()
+    return [int(j) for j in np.argsort(-p, kind="stable")[: beliefs + 1] if j != cls and p[j] >= p_min][:beliefs]
+
+
+def _scales_on(bundle: ModelBundle, classes: list[int], phases: list[float], response: complex,
+               response_period: float, *, kp: float, kd: float, derivative_filter_hz: float,
+               attitude: dict[str, float] | None) -> np.ndarray:
+    """``guard_scale`` of one PD on the fitted models of ``classes`` (each with its own extra lag), one batch."""
+    from uavsim.ident.gains import fitted_model
+
+    k = len(classes)
+    resp, per = np.full(k, complex(response)), np.full(k, float(response_period))
+    model = fitted_model(bundle, classes, resp, per, attitude=attitude)
+    return guard_scale(bundle, classes, resp, per, kp=np.full(k, float(kp)), kd=np.full(k, float(kd)),
+                       derivative_filter_hz=np.full(k, float(derivative_filter_hz)), model=model,
+                       phase_deg=np.asarray(phases, dtype=np.float64))
+
+
 def belief_guard_scale(bundle: ModelBundle, p, cls: int, response: complex, response_period: float, *, kp: float,
                        kd: float, derivative_filter_hz: float, attitude: dict[str, float] | None = None,
-                       beliefs: int = GUARD_BELIEFS, p_min: float = GUARD_BELIEF_MIN,
-                       phase_deg: float | None = None) -> tuple[float, list[int]]:
+                       beliefs: int = GUARD_BELIEFS, p_min: float = GUARD_BELIEF_MIN) -> tuple[float, list[int]]:
     """The factor of one answer's PD that the belief's other likely classes' fitted models hold, and those classes.
 
     ``guard_scale`` of the answer's PD on the fitted models (``fitted_model`` at the measured point)
     of the ``beliefs`` most likely classes of ``p`` (n,) other than ``cls`` with at least ``p_min``,
-    each with ``phase_deg`` more lag (None: ``GUARD_BELIEF_PHASE_DEG`` of the loop; a loop without an
-    entry: factor 1, no class); the least of their factors.
+    each with ``GUARD_BELIEF_PHASE_DEG`` of the loop more lag (a loop without an entry: factor 1,
+    no class); the least of their factors.
     """
-    from uavsim.ident.gains import fitted_model
-
-    if phase_deg is None:
-        phase_deg = GUARD_BELIEF_PHASE_DEG.get(bundle.loop)
-    p = np.asarray(p, dtype=np.float64).ravel()
-    if phase_deg is None or beliefs <= 0:
-        return 1.0, []
-    top = [int(j) for j in np.argsort(-p, kind="stable")[: beliefs + 1] if j != cls and p[j] >= p_min][:beliefs]
+    top = _belief_classes(bundle, p, cls, beliefs, p_min)
     if not top:
         return 1.0, []
-    k = len(top)
-    resp, per = np.full(k, complex(response)), np.full(k, float(response_period))
-    model = fitted_model(bundle, top, resp, per, attitude=attitude)
-    s = guard_scale(bundle, top, resp, per, kp=np.full(k, float(kp)), kd=np.full(k, float(kd)),
-                    derivative_filter_hz=np.full(k, float(derivative_filter_hz)), model=model, phase_deg=phase_deg)
+    s = _scales_on(bundle, top, [GUARD_BELIEF_PHASE_DEG[bundle.loop]] * len(top), response, response_period,
+                   kp=kp, kd=kd, derivative_filter_hz=derivative_filter_hz, attitude=attitude)
     return float(s.min()), top
 
 
 def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_period: float, *, kp: float,
-                 kd: float, derivative_filter_hz: float, model: dict[str, np.ndarray] | None = None,
-                 attitude: dict[str, float] | None = None) -> dict:
+                 kd: float, derivative_filter_hz: float, attitude: dict[str, float] | None = None) -> dict:
     """The guard of one answer (module docstring): the least of its own model's factor and the belief's.
 
-    Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``, ``belief_scale``,
-    ``belief_classes``, ``belief_phase_deg``.
+    The answer's class and the belief's (``belief_guard_scale``) are fitted and closed in one
+    batch. Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``,
+    ``belief_scale``, ``belief_classes``, ``belief_phase_deg``.
     """
-    own = float(guard_scale(bundle, [cls], [response], [response_period], kp=[kp], kd=[kd],
-                            derivative_filter_hz=[derivative_filter_hz], model=model)[0])
-    bel, top = belief_guard_scale(bundle, p, cls, response, response_period, kp=kp, kd=kd,
-                                  derivative_filter_hz=derivative_filter_hz, attitude=attitude)
+    top = _belief_classes(bundle, p, cls, GUARD_BELIEFS, GUARD_BELIEF_MIN)
+    bp = GUARD_BELIEF_PHASE_DEG.get(bundle.loop)
+    s = _scales_on(bundle, [int(cls), *top], [GUARD_PHASE_DEG] + [bp] * len(top), response, response_period,
+                   kp=kp, kd=kd, derivative_filter_hz=derivative_filter_hz, attitude=attitude)
+    own, bel = float(s[0]), (float(s[1:].min()) if top else 1.0)
     return {"scale": min(own, bel), "phase_deg": GUARD_PHASE_DEG, "own_scale": own, "belief_scale": bel,
-            "belief_classes": top, "belief_phase_deg": GUARD_BELIEF_PHASE_DEG.get(bundle.loop)}
+            "belief_classes": top, "belief_phase_deg": bp}

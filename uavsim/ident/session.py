@@ -146,7 +146,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         t0 = time.perf_counter()
         gd = answer_guard(bundle, dec.p[0], c, f.response, f.response_period, kp=float(g_tab["kp"][0]),
                           kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
-                          model=model, attitude=attitude)
+                          attitude=attitude)
         s = gd["scale"]
         ans["guard"] = {**gd, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
