@@ -197,6 +197,10 @@ chunk = 4
 
     monkeypatch.setattr(backends, "SETTINGS_RULE", backends.SETTINGS_RULE + 1)
     assert generate(r2, tmp_path / "lat.h5", progress=False)["episodes_run"] == s["episodes_run"]
+    # and one made under another relay bias-trim law
+    assert open_dataset(f).attrs["trim_rule"] == backends.TRIM_RULE
+    monkeypatch.setattr(backends, "TRIM_RULE", backends.TRIM_RULE + 1)
+    assert generate(r2, tmp_path / "lat.h5", progress=False)["episodes_run"] == s["episodes_run"]
 
 
 def test_plan_is_deterministic_and_chunks_cover():

@@ -61,7 +61,8 @@ def cycle_errors(E: np.ndarray, S: np.ndarray, ref: dict) -> np.ndarray:
 
 
 def test_trimmed_cycle_is_the_bias_free_cycle_to_a_sample_of_duty():
-    T = int(30.0 * RATE)
+    # a quarter of the duty error per cycle: the slowest cycle here (2 s) needs ~20 cycles from 0.5 h
+    T = int(60.0 * RATE)
     p, n = PROCESSES, len(PROCESSES)
     ref = simulate_relay_batch("inner", BETA, 1.0, 1.0 / RATE, T, K=p[:, 0], T_prop=p[:, 1], T1=p[:, 2], tau=p[:, 3])
     N = np.array([cycle_stats(ref["t"], ref["e"][i], ref["u"][i]).period for i in range(n)]) * RATE

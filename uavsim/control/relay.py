@@ -44,9 +44,10 @@ the cycle of an integrating loop asymmetric, with less amplitude for the same
 sensor noise, and under noise much less regular (a bias of 0.4 h at 10 % noise:
 cycle-to-cycle period spread 0.20 of the period, trimmed 0.03). On these loops the
 input's mean over a steady cycle is zero, so the cycle's duty measures the bias:
-at every switch to ``+h`` the bias moves by half the last cycle's duty error
+at every switch to ``+h`` the bias moves by a quarter of the last cycle's duty error
 (:meth:`NPMRFT._trim`), from the third cycle on and where its half-waves differ
-by more than a sample. Within a few cycles the bias left is a sample of duty and
+by more than a sample. Within about ten cycles (an episode's refinement stages
+and its own cycles) the bias left is a sample of duty and
 the cycle is the bias-free one to that resolution. The recorded ``u`` carries the
 moving bias; :func:`relay_sign` and :func:`untrimmed` read the relay's states
 back from it, and :func:`relay_command` is how a run is read for identification.
@@ -66,15 +67,18 @@ READINGS = (1, 2)
 #: the reading sessions are written with
 READING = 2
 #: a trimmed bias's move at a switch to +h, as a fraction of the last cycle's duty error
-TRIM_GAIN = 0.5
+TRIM_GAIN = 0.25
 #: largest move of a trimmed bias at one switch, in units of h: a switch to +h then moves
-#: ``u`` by 1.75-2.25 h and a switch to -h by exactly -2 h, so ``relay_sign`` reads both apart
-TRIM_STEP_MAX = 0.25
+#: ``u`` by 1.9-2.1 h and a switch to -h by exactly -2 h, so ``relay_sign`` reads both apart
+TRIM_STEP_MAX = 0.1
 #: half-waves differing by no more than this (samples) are even: a sampled relay's cycle can
 #: alternate a sample between them, and trimming that moves the cycle between neighbouring ones
 TRIM_DEADBAND = 1
 #: switches before the first trim: the start-up half-waves are not a cycle of the loop
 TRIM_AFTER_SWITCHES = 5
+#: the trim law's version (gain and step above): training sets and their resume state record it,
+#: so that a file or chunk made under another law is made again, not mixed in (1: gain 0.5, step h/4)
+TRIM_RULE = 2
 
 
 def as_batch(name: str, value: float | np.ndarray, n: int) -> np.ndarray:
@@ -438,8 +442,10 @@ class NPMRFT:
         # loop the input's mean over a steady cycle is zero, so (2 d - 1) h = -(bias +
         # disturbance). The trim is integral action on the cycle's mean: a whole step (gain 1)
         # is deadbeat on a steady cycle but follows a transient cycle's duty too, and a noisy
-        # switch time moves it by its full error; half a step converges within a few cycles and
-        # passes a third of the noise's variance. The first cycles (start-up, where e = 0 can
+        # switch time moves it by its full error. Half a step passed a third of the switch
+        # noise's variance to the bias (g / (2 - g)) and, clipped at h/4, lost the lateral
+        # loops' cycle under noise; a quarter step, at most h/10, passes a seventh and converges
+        # from 0.5 h in about ten cycles. The first cycles (start-up, where e = 0 can
         # chatter) are not trimmed from.
         rows = sw & (self.sign > 0) & (self.n_sw >= TRIM_AFTER_SWITCHES)
         rows &= np.abs(self.half[1] - self.half[0]) > TRIM_DEADBAND

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from uavsim.control.relay import READING
+from uavsim.control.relay import READING, TRIM_RULE
 from uavsim.data import preprocess
 from uavsim.data.backends import git_commit, versions
 from uavsim.data.h5 import CLASS_FIELDS, CLASS_PARAMS, write_dataset
@@ -103,7 +103,7 @@ def assemble(plan: Plan, results: dict[int, dict], out: Path, run_versions: dict
     n_div = int(div[:nt].sum())
     attrs = {"loop": fam, "grid_hash": g.hash or "", "grid_version": int(g.version), "beta": plan.beta,
              "h": r.test.h, "relay_reading": READING, "relay_settings": r.test.settings,
-             "settings_rule": SETTINGS_RULE,
+             "settings_rule": SETTINGS_RULE, "trim_rule": TRIM_RULE,
              "tau_obs": r.test.tau_obs if fixed else float("nan"), "a_n": r.test.a_n if fixed else float("nan"),
              "refinements": 0 if fixed else r.test.refinements, "rate_hz": r.episodes.rate_hz,
              "dt": r.episodes.dt, "input_length": L, "input_rate_hz": preprocess.INPUT_RATE_HZ,

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavsim.control.relay import READING
+from uavsim.control.relay import READING, TRIM_RULE
 from uavsim.cpus import available_cpus
 from uavsim.data.episodes import chunk_task, run_chunk
 from uavsim.data.h5 import FORMAT, open_dataset
@@ -40,8 +40,8 @@ def finished_file(out: Path, plan: Plan) -> bool:
     attitude class) interrupted after some files continues without making them again.
 
     The file must pass ``open_dataset``'s checks (format, complete, its arrays), and its key
-    must be the chunks' resume key (recipe, attitude class, relay reading, settings rule) and the
-    grid the file was made over; a file of another recipe, grid, reading or rule is made again.
+    must be the chunks' resume key (recipe, attitude class, relay reading, settings and trim rules) and
+    the grid the file was made over; a file of another recipe, grid, reading or rule is made again.
     """
     if not out.exists():
         return False
@@ -53,6 +53,7 @@ def finished_file(out: Path, plan: Plan) -> bool:
     return (a.get("recipe") == plan.recipe.text and int(a.get("seed", -1)) == plan.recipe.seed
             and a.get("grid_hash") == (plan.grid.hash or "") and a.get("relay_reading") == READING
             and int(a.get("settings_rule", 1)) == SETTINGS_RULE
+            and int(a.get("trim_rule", 1)) == TRIM_RULE
             and (None if att is None else int(att)) == plan.att_class)
 
 
@@ -63,7 +64,7 @@ class ResumeState:
         self.dir = out.with_name(out.name + ".resume")
         self.key = {"recipe_hash": plan.recipe.hash, "att_class": plan.att_class, "n_chunks": len(plan.chunks),
                     "format": FORMAT, "relay_reading": READING,
-                    "settings_rule": SETTINGS_RULE}
+                    "settings_rule": SETTINGS_RULE, "trim_rule": TRIM_RULE}
         state = self.dir / "state.json"
         if self.dir.exists():
             try:
@@ -71,7 +72,7 @@ class ResumeState:
             except (OSError, ValueError):
                 old = None
             if old != self.key:
-                print(f"generate: {self.dir} is from another recipe, relay reading or settings rule; starting over", file=sys.stderr, flush=True)
+                print(f"generate: {self.dir} is from another recipe, relay reading, settings rule or trim rule; starting over", file=sys.stderr, flush=True)
                 shutil.rmtree(self.dir)
         self.dir.mkdir(parents=True, exist_ok=True)
         if not state.exists():
