@@ -294,17 +294,30 @@ def test_cli_identifies_when_the_session_has_no_model(monkeypatch, tmp_path, cap
     assert (j["answer"], j["base_source"], j["effect"]) == ("none", "identified", "none")
 
 
-def test_identified_naming_needs_a_gap_beyond_a_clean_sessions():
+def test_identified_naming_needs_a_gap_beyond_a_clean_sessions(monkeypatch):
+    monkeypatch.setattr(iterate, "CLEAN_GAP", {"altitude": 4.0, "attitude": 3.0})
+    monkeypatch.setattr(iterate, "CLEAN_REMOVAL", {"altitude": {}, "attitude": {"rate_limit": 0.6}})
     none_gap = iterate.NONE_GAP["attitude"]
-    # within what a clean session leaves: a candidate that halves it names nothing
-    assert not iterate.accepts(0.9 * none_gap, 0.3 * none_gap, "pitch")
-    # the same halving of a session's model's gap is named (the single search's own rule)
+    # within what a clean session leaves: a candidate that removes most of it names nothing
+    assert not iterate.accepts(0.9 * none_gap, 0.3 * none_gap, "pitch", effect="lag")
+    # the same of a session's own model's gap is named (the single search's own rule)
     assert iterate.accepts(0.9 * none_gap, 0.3 * none_gap, "pitch", identified=False)
-    # beyond it: most of the gap, or enough of it to leave no more than a clean session
-    assert iterate.accepts(3.0 * none_gap, 1.1 * none_gap, "pitch")
-    assert iterate.accepts(1.5 * none_gap, 0.85 * none_gap, "pitch")
-    assert not iterate.accepts(1.5 * none_gap, 1.05 * none_gap, "pitch")
-    assert not iterate.accepts(3.0 * none_gap, 1.5 * none_gap, "pitch")
+    # beyond it, the share of the squared gap beyond a clean session's: 10 -> 5 removes 75 of 91
+    assert iterate.excess_share(10.0, 5.0, "lag", "pitch") == pytest.approx(75 / 91)
+    assert iterate.accepts(10.0, 5.0, "pitch", effect="lag")
+    # 10 -> 6.5 removes 57.75 of 91 (0.63): a lag is named; a rate limit, which takes 0.6 of a clean
+    # session's squared gap (5.4) from every session, is given it back and removes 0.57: not named
+    assert iterate.accepts(10.0, 6.5, "pitch", effect="lag")
+    assert iterate.excess_share(10.0, 6.5, "rate_limit", "pitch") == pytest.approx((100 - 42.25 - 5.4) / 91)
+    assert not iterate.accepts(10.0, 6.5, "pitch", effect="rate_limit")
+    assert iterate.excess_share(2.5, 1.0, "lag", "pitch") == 0.0  # within a clean gap: nothing beyond it
+
+
+def test_credited_gap_adds_in_squares():
+    from uavsim.gap.workflow import credited_gap
+
+    assert credited_gap("rate_limit", 3.0, {"rate_limit": 16.0}) == pytest.approx(5.0)
+    assert credited_gap("lag", 3.0, {"rate_limit": 16.0}) == 3.0 and credited_gap("lag", 3.0, None) == 3.0
 
 
 def test_declined_proposal_keeps_the_searchs_model(monkeypatch):

@@ -292,3 +292,25 @@ def test_simulated_step_runs_follow_their_derivative():
     assert meas.u[k] == pytest.approx(2.0 * 0.05, rel=1e-9)
     a = (2 * math.pi * 10.0 / rate) / (1 + 2 * math.pi * 10.0 / rate)
     assert err.u[k] - meas.u[k] == pytest.approx(0.3 * a * 0.05 * rate, rel=1e-9)  # the kick, 7x kp e here
+
+
+def test_staircase_cause_read_off_the_samples():
+    """A quantized measurement passes lone samples on a level lattice, a held frame repeats off any lattice."""
+    from types import SimpleNamespace
+
+    from uavsim.gap.workflow import data_hints, ruled_out
+
+    quant, tq = hidden_session(2, effect="quantization", loop="roll")
+    held, th = hidden_session(1, effect="sample_hold", loop="roll")
+    clean, _ = hidden_session(1, effect="none", loop="roll")
+    assert ruled_out(quant, 200.0) == {"sample_hold"}
+    assert data_hints(quant, 200.0)["quantization"] == pytest.approx(tq.params["step"], rel=1e-9)
+    assert ruled_out(held, 200.0) == {"quantization"}
+    assert data_hints(held, 200.0)["sample_hold"] == pytest.approx(th.params["rate_hz"], rel=0.02)
+    assert ruled_out(clean, 200.0) == set() and data_hints(clean, 200.0) == {}
+    # a quantized hold shows both causes and keeps both
+    t = np.arange(4000) / 200.0
+    y = np.sin(2 * np.pi * t / 0.5) + 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    y = np.round(np.repeat(y[::5], 5)[: t.size] / 0.05) * 0.05
+    both = SimpleNamespace(runs=[SimpleNamespace(data=SimpleNamespace(y=y))])
+    assert ruled_out(both, 200.0) == set() and set(data_hints(both, 200.0)) == {"quantization", "sample_hold"}

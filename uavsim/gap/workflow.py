@@ -17,7 +17,9 @@
    parameter's log). Each candidate's score is its remaining gap plus a
    complexity penalty of :data:`PENALTY` per parameter. With an identified
    model (``phase_anchor_hz``), lag-like candidates take the phase they add at
-   the identified cycle out of its ``tau``.
+   the identified cycle out of its ``tau``; with ``credit`` (what each
+   candidate already removes from a clean session), the gap a candidate
+   leaves is first given back that much (:func:`credited_gap`).
 3. **Decision.** ``none`` when the gap before is within what noise explains
    (:data:`NONE_GAP`), when no candidate's score beats it, or when the best
    candidate leaves more than :data:`NAME_RATIO` of it (no single effect of
@@ -63,7 +65,7 @@ from uavsim.gap.features import (
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
-__all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table",
+__all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out",
            "read_model_file", "candidate_grid"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
@@ -80,6 +82,18 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
+def credited_gap(name: str, gap: float, credit: dict[str, float] | None) -> float:
+    """The gap candidate ``name`` leaves, given back the squared gap ``credit[name]`` it removes from a clean session.
+
+    The gap is an RMS of z-scores, so independent misfits add in squares: a candidate
+    that also takes out part of the base model's own misfit (an actuator limit that
+    clips the steps' first sample, on every session) is judged by what it removes
+    beyond that part.
+    """
+    extra = (credit or {}).get(name, 0.0)
+    return math.sqrt(gap * gap + extra) if extra > 0 else gap
+
+
 def candidate_phase(name: str, value: float, freq_hz: float) -> float:
     """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (its vocabulary term's
     ``phase``; 0 for effects without one and for the bare model, ``none``)."""
@@ -128,6 +142,8 @@ class GapResult:
     seed : int
     seconds : float
     sims_before, sims_after : per run, the seed-0 simulation (for plots)
+    ruled_out : list of str
+        Candidates not searched because the measured samples exclude them (:func:`ruled_out`).
     """
 
     effect: str
@@ -142,6 +158,7 @@ class GapResult:
     seconds: float
     sims_before: list[SimRun] = field(default_factory=list, repr=False)
     sims_after: list[SimRun] = field(default_factory=list, repr=False)
+    ruled_out: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """The spec's JSON answer (effect, params, gap_before, gap_after, ranking) plus details."""
@@ -156,6 +173,7 @@ class GapResult:
             "effects": [{"name": e.name, **e.params} for e in self.effects],
             "seed": self.seed,
             "seconds": self.seconds,
+            "ruled_out": list(self.ruled_out),
         }
 
 
@@ -185,37 +203,85 @@ def _session_scales(session: Session, feats: list[dict | None]) -> dict[str, flo
     return {"period": period, "h_min": min(hs), "h_max": max(hs), "amp": amp, "umax": umax}
 
 
+#: repeated samples (a share of all) above which the measurement is read as a staircase
+STAIR_REPEATS = 0.2
+#: a staircase is on a level lattice (quantization) when at least this share of the gaps between
+#: its distinct levels are whole multiples (within 5 %) of the smallest one
+STAIR_LATTICE = 0.5
+#: and held in frames (sample-and-hold) when at least this share of its runs of equal samples are two
+#: samples or longer (a frame rate holds every value; a quantizer passes lone samples where the signal
+#: moves faster than a step a sample)
+STAIR_HELD_SHARE = 0.9
+
+
+def _equal_runs(y: np.ndarray) -> np.ndarray:
+    """Lengths (samples) of the runs of equal consecutive samples of ``y`` (n,), a 1 for every lone sample."""
+    change = np.flatnonzero(np.diff(y) != 0)
+    return np.diff(np.concatenate([[-1], change, [y.size - 1]]))
+
+
 def data_hints(session: Session, rate_hz: float) -> dict[str, float]:
     """Parameters read straight off the measured samples, where the data shows them.
 
-    Quantization and sample-and-hold leave the measurement on a lattice and in
-    runs of repeated values; their gap landscapes are rugged (each step or
-    frame rate gives its own relay orbits), so a coarse grid can miss the
-    basin. The hints join the candidate grids:
+    Quantization and sample-and-hold leave the measurement in runs of repeated
+    values; their gap landscapes are rugged (each step or frame rate gives its
+    own relay orbits), so a coarse grid can miss the basin. When at least
+    :data:`STAIR_REPEATS` of the samples repeat the one before, the hints join the candidate grids:
 
     * ``quantization``: the smallest gap between distinct measured values,
-      when at least a fifth of the samples repeat the one before (else no hint);
+      when the levels lie on its lattice (:data:`STAIR_LATTICE`);
     * ``sample_hold``: the control rate over the mean length of runs of equal
-      samples, when that is at least 1.5 samples.
+      samples, when that is at least 1.5 samples and the values are held in
+      frames (:data:`STAIR_HELD_SHARE`).
+
+    A staircase on a lattice that passes lone samples is not held in frames, and
+    one held in frames off any lattice is not quantized: :func:`ruled_out` names
+    the effect the data exclude (a quantized hold shows both and keeps both).
 
     Returns
     -------
     dict name -> value (vocabulary units), for the effects with a hint.
     """
+    hints, _ = _staircase(session, rate_hz)
+    return hints
+
+
+def ruled_out(session: Session, rate_hz: float) -> set[str]:
+    """Vocabulary effects the measured samples exclude (:func:`data_hints`): of a staircase's two causes, the one it does not show."""
+    return _staircase(session, rate_hz)[1]
+
+
+def _staircase(session: Session, rate_hz: float) -> tuple[dict[str, float], set[str]]:
     ys = [np.asarray(r.data.y, dtype=np.float64) for r in session.runs]
     ys = [y[np.isfinite(y)] for y in ys]
-    same = np.concatenate([y[1:] == y[:-1] for y in ys if y.size > 1])
+    ys = [y for y in ys if y.size > 1]
+    if not ys:
+        return {}, set()
+    same = np.concatenate([y[1:] == y[:-1] for y in ys])
+    if not same.mean() >= STAIR_REPEATS:
+        return {}, set()
     hints: dict[str, float] = {}
-    if same.size and same.mean() >= 0.2:
-        levels = np.unique(np.concatenate(ys))
-        d = np.diff(levels)
-        d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(levels))))]
-        if d.size:
-            hints["quantization"] = float(d.min())
-        run_len = 1.0 / max(1.0 - same.mean(), 1e-9)
-        if run_len >= 1.5:
-            hints["sample_hold"] = rate_hz / run_len
-    return hints
+    levels = np.unique(np.concatenate(ys))
+    d = np.diff(levels)
+    d = d[d > 1e-12 * max(1.0, float(np.max(np.abs(levels))))]
+    lattice = False
+    if d.size:
+        q = float(d.min())
+        k = d / q
+        lattice = bool(np.mean(np.abs(k - np.round(k)) <= 0.05) >= STAIR_LATTICE)
+        if lattice:
+            hints["quantization"] = q
+    runs = np.concatenate([_equal_runs(y) for y in ys])
+    held = bool(np.mean(runs >= 2) >= STAIR_HELD_SHARE)
+    run_len = 1.0 / max(1.0 - same.mean(), 1e-9)
+    if run_len >= 1.5 and held:
+        hints["sample_hold"] = rate_hz / run_len
+    out: set[str] = set()
+    if lattice and not held:
+        out.add("sample_hold")
+    if held and not lattice:
+        out.add("quantization")
+    return hints, out
 
 
 def candidate_grid(name: str, sc: dict[str, float], noise_std: float, rate_hz: float, n: int = 8,
@@ -359,6 +425,7 @@ def run_gap(
     smoother_sensor: bool = True,
     name_ratio: float = NAME_RATIO,
     phase_anchor_hz: float | None = None,
+    credit: dict[str, float] | None = None,
     log=None,
 ) -> GapResult:
     """Run the whole gap workflow on a session.
@@ -395,6 +462,11 @@ def run_gap(
         (``lag``, ``lowpass``) take their phase there out of ``tau`` (down to 0), so that
         the model keeps the measured phase and only the candidate's shape is
         tested; a winner's result carries the model with the shorter ``tau``.
+    credit : dict of str to float, optional
+        Per candidate, the squared gap it removes from a clean session of the loop
+        (the base model's own misfit, which every session has): candidates are
+        ranked, verified and named by :func:`credited_gap`, not by the raw gap
+        they leave (``ranking`` keeps both; ``gap_after`` is the raw gap).
     log : callable(str), optional
         Progress messages.
 
@@ -419,6 +491,13 @@ def run_gap(
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
             raise UserError(f"run {i} ({r.spec.file}): the measured data holds {what}; the gap cannot be measured")
     rate = float(session.control_rate_hz)
+    excluded = sorted(ruled_out(session, rate) & set(candidates))
+    if excluded and len(excluded) < len(candidates):
+        candidates = tuple(c for c in candidates if c not in excluded)
+        top = min(top, len(candidates))
+        log(f"not searched, the measured samples exclude them: {', '.join(excluded)}")
+    else:
+        excluded = []
 
     # 1. gap before, with several noise seeds (their spread is what noise explains)
     before = ev.sims([("none", 0.0)], seeds=SEEDS)
@@ -467,7 +546,7 @@ def run_gap(
     # 3. fine grids around the best of the top candidates, then a zoom on the best two
     allv = {c: list(zip(per[c][0].tolist(), per[c][1].tolist(), strict=True)) for c in candidates}
     for stage, (ntop, npts) in enumerate(((top, fine), (2, 5))):
-        order = sorted(candidates, key=lambda c: min(g for _, g in allv[c]))
+        order = sorted(candidates, key=lambda c: credited_gap(c, min(g for _, g in allv[c]), credit))
         fine_c: list[tuple[str, float]] = []
         for c in order[:ntop]:
             pts = sorted(allv[c])
@@ -491,18 +570,20 @@ def run_gap(
         best[c] = (_refine(vals, gs), float(gs.min()))
 
     # 4. verify the refined value of the top candidates with fresh seeds, decide
-    top_c = sorted(candidates, key=lambda c: best[c][1])[:VERIFY]
+    top_c = sorted(candidates, key=lambda c: credited_gap(c, best[c][1], credit))[:VERIFY]
     ver = ev.sims([(c, best[c][0]) for c in top_c], seeds=SEEDS)
     verified = {c: ev.seed_gap(ver[j * SEEDS:(j + 1) * SEEDS]) for j, c in enumerate(top_c)}
-    ranking = [{"effect": "none", "params": {}, "gap": gap_before, "score": gap_before}]
+    ranking = [{"effect": "none", "params": {}, "gap": gap_before, "credited": gap_before, "score": gap_before}]
     for c in candidates:
         g = verified.get(c, best[c][1])
-        ranking.append({"effect": c, "params": _effect_params(c, best[c][0]), "gap": g, "score": g + PENALTY})
+        cg = credited_gap(c, g, credit)
+        ranking.append({"effect": c, "params": _effect_params(c, best[c][0]), "gap": g, "credited": cg,
+                        "score": cg + PENALTY})
     ranking.sort(key=lambda r: r["score"])
     winner = ranking[0]
     # name an effect only when it explains most of the gap: a gap within noise,
     # or one that no single effect closes, is answered ``none``
-    if gap_before <= NONE_GAP or winner["gap"] > name_ratio * gap_before:
+    if gap_before <= NONE_GAP or winner.get("credited", winner["gap"]) > name_ratio * gap_before:
         winner = ranking[[r["effect"] for r in ranking].index("none")]
     effect = winner["effect"]
     if effect == "none":
@@ -514,7 +595,9 @@ def run_gap(
         value, gap_p, sims_p = _polish(ev, effect, best[effect][0], rate)
         if gap_p < gap_after:
             gap_after, sims_after = gap_p, sims_p
-            winner = {**winner, "params": _effect_params(effect, value), "gap": gap_p, "score": gap_p + PENALTY}
+            cg = credited_gap(effect, gap_p, credit)
+            winner = {**winner, "params": _effect_params(effect, value), "gap": gap_p, "credited": cg,
+                      "score": cg + PENALTY}
             ranking = sorted([winner] + [r for r in ranking if r["effect"] != effect], key=lambda r: r["score"])
         log(f"winner polished ({time.perf_counter() - t_start:.1f} s)")
         effects = [e for e in session.effects if e.name != effect]
@@ -536,6 +619,7 @@ def run_gap(
         seconds=time.perf_counter() - t_start,
         sims_before=before[0],
         sims_after=sims_after,
+        ruled_out=list(excluded),
     )
 
 
