@@ -108,7 +108,7 @@ NONE_GAP = {"altitude": 5.2, "attitude": 7.0}
 #: per loop family, the gap a clean testbed session leaves with an identified base model refitted
 #: on all its runs: the base model's own misfit, which every session carries. The median of the 9
 #: clean development sessions of seeds 0-39 (attitude 2.99-5.22, altitude 3.02-4.66;
-#: docs/results/gap-testbed.md)
+#: docs/results/gap-workflow.md)
 CLEAN_GAP = {"altitude": 4.19, "attitude": 3.84}
 #: per loop family and candidate, the largest share of a clean development session's squared gap
 #: the candidate removes (the same 9 sessions, rounded up): what it takes out of every session's

@@ -66,7 +66,7 @@ from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out",
-           "read_model_file", "candidate_grid"]
+           "credited_gap", "read_model_file", "candidate_grid"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -82,6 +82,8 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
+
+
 def credited_gap(name: str, gap: float, credit: dict[str, float] | None) -> float:
     """The gap candidate ``name`` leaves, given back the squared gap ``credit[name]`` it removes from a clean session.
 
@@ -491,7 +493,8 @@ def run_gap(
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"
             raise UserError(f"run {i} ({r.spec.file}): the measured data holds {what}; the gap cannot be measured")
     rate = float(session.control_rate_hz)
-    excluded = sorted(ruled_out(session, rate) & set(candidates))
+    hints, shown_not = _staircase(session, rate)
+    excluded = sorted(shown_not & set(candidates))
     if excluded and len(excluded) < len(candidates):
         candidates = tuple(c for c in candidates if c not in excluded)
         top = min(top, len(candidates))
@@ -530,7 +533,6 @@ def run_gap(
 
     # 2. coarse grids of every candidate in one batch
     sc = _session_scales(session, ev.meas)
-    hints = data_hints(session, rate)
     grids = {c: candidate_grid(c, sc, float(model.noise_std), rate, coarse, hints.get(c)) for c in candidates}
     cands = [(c, float(v)) for c in candidates for v in grids[c]]
     sims = ev.sims(cands)
