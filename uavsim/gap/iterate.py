@@ -15,8 +15,8 @@
    stopped oscillating) are dropped, and named; that the relay lost its cycle
    is kept as part of the answer.
 3. **Iteration.** :func:`uavsim.gap.workflow.run_gap` fits every vocabulary
-   effect (except one the measured samples exclude:
-   :func:`uavsim.gap.workflow.ruled_out`); when the best removes at least
+   effect (with an identified base model, except one the measured samples
+   exclude: :func:`uavsim.gap.workflow.ruled_out`); when the best removes at least
    :data:`NAME_SHARE` of the gap it is added to the model's effects and the
    search runs again on what is left, up to :data:`MAX_EFFECTS` effects
    (:func:`accepts`). An identified base model has its own misfit, which a
@@ -455,6 +455,7 @@ def analyse(
                 smoother_sensor=source == "identified",
                 phase_anchor_hz=anchor_hz,
                 credit=clean_credit(session.loop) if source == "identified" else None,
+                read_staircase=source == "identified",
                 log=log,
             )
         except UnflownRun as exc:
