@@ -86,3 +86,41 @@ def test_absorbed_reads_the_refits_phase_at_the_cycle():
     assert iterate.absorbed_by({**ident, "params": {"tau": 0.05}, "refit": same}) is None
     # a refit that was not kept leaves identify's reading
     assert iterate.absorbed_by({**ident, "params": {"tau": 0.05}, "refit": {**lagged, "accepted": False}}) is not None
+
+
+def test_refit_starts_from_the_screened_start_of_least_gap(clean):
+    """The search begins from the screened start that flies the runs best (here the truth, against
+    a gain twice too high and the off start), and the result is still judged against the model
+    it was given."""
+    true = clean.model
+    far = _off(true)
+    other = dataclasses.replace(true, K=2.0 * true.K)
+    fit = refit_base(clean, far, seed=5, nthread=1, iterations=2, starts=[other, true])
+    assert fit.screened == {"start": 1, "gap": pytest.approx(fit.screened["gap"]), "model_gap":
+                            pytest.approx(fit.screened["model_gap"]), "n": 2}
+    assert fit.screened["gap"] < 0.5 * fit.screened["model_gap"]
+    assert fit.accepted and fit.start is far and fit.gap_after < 0.5 * fit.gap_before
+    assert fit.model.T_prop + fit.model.tau == pytest.approx(true.T_prop + true.tau, rel=0.2)
+    assert fit.moved["T_prop"] > 1.3 and fit.to_json()["screened"]["start"] == 1
+    # without starts nothing is screened
+    assert refit_base(clean, true, seed=5, nthread=1, iterations=1).screened is None
+
+
+def test_analyse_screens_the_class_starts_only_when_asked(monkeypatch, clean):
+    start = _off(clean.model)
+    ident = {"run": clean.runs[0].spec.file, "class": 3, "params": dataclasses.asdict(start),
+             "class_params": {"tau": start.tau}, "oscillation": {"period": 0.5}, "refused_runs": []}  # fmt: skip
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (start, ident))
+    monkeypatch.setattr(iterate, "class_starts", lambda i, m: [clean.model])
+    seen = []
+
+    def fake_refit(session, model, **kw):
+        seen.append(kw.get("starts"))
+        return refit_base(session, model, **{**kw, "iterations": 1})
+
+    monkeypatch.setattr(iterate, "refit_base", fake_refit)
+    s = dataclasses.replace(clean, model=None)
+    iterate.analyse(s, candidates=("gain",), max_effects=1, nthread=1)
+    assert seen == [None]
+    flow = iterate.analyse(s, candidates=("gain",), max_effects=1, nthread=1, screen=True)
+    assert seen[-1] == [clean.model] and flow.identification["refit"]["screened"]["start"] == 0

@@ -621,3 +621,26 @@ def test_belief_guard_backs_off_a_pd_the_belief_s_other_classes_cannot_hold():
         assert belief_guard_scale(b, p, other, resp, per, derivative_filter_hz=fhz, **hot) == (1.0, [])
         assert belief_guard_scale(dc_replace(b, loop="lateral"), p, other, resp, per, derivative_filter_hz=fhz,
                                   **hot) == (1.0, [])
+
+
+def test_the_gap_refits_starts_are_every_other_class_on_the_cycle(setup):
+    """``uavsim.gap.iterate.class_starts``: the answer's cycle read back fits the answer's own class as
+    identification did, and every other class of the network is a start with its own lags."""
+    from uavsim.formats.session import read_session
+    from uavsim.gap.iterate import class_starts, cycle_response, identify_base
+    from uavsim.ident.bundle import load_bundle
+    from uavsim.ident.gains import fitted_model
+
+    model, ans = identify_base(read_session(setup["session"]), setup["model"])
+    b = load_bundle(ans["model_dir"])
+    resp, period = cycle_response(ans)
+    own = fitted_model(b, [ans["class"]], [resp], [period])
+    assert own["K"][0] == pytest.approx(ans["params"]["K"], rel=1e-9)
+    assert own["tau"][0] == pytest.approx(ans["params"]["tau"], rel=1e-9, abs=1e-12)
+    starts = class_starts(ans, model)
+    others = [c for c in range(b.n_classes) if c != ans["class"]]
+    assert len(starts) == len(others)
+    for c, s in zip(others, starts, strict=True):
+        assert (s.T_prop, s.T1) == pytest.approx((b.column("T_prop")[c], b.column("T1")[c]))
+        assert s.K > 0 and s.tau >= 0 and s.noise_std == model.noise_std
+    assert class_starts({k: v for k, v in ans.items() if k != "response"}, model) == []

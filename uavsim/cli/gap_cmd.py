@@ -35,6 +35,9 @@ def register(subparsers) -> None:
     p.add_argument("--models", metavar="DIR", help="networks for identifying the base model when the session has "
                    "no [model] (default: uavsim identify's)")
     p.add_argument("--max-effects", type=int, default=2, help="most effects added one after the other (default 2)")
+    p.add_argument("--screen-classes", action="store_true",
+                   help="identified base model: start its refit from the network class whose model, fitted to the "
+                        "same cycle, flies the runs best (lower base gaps; the naming thresholds were set without it)")
     p.set_defaults(func=main)
 
 
@@ -44,7 +47,8 @@ def main(args: argparse.Namespace) -> int:
 
     session = read_session(args.session)
     model = read_model_file(args.model, session.loop) if args.model else None
-    flow = analyse(session, model, models=args.models, seed=args.seed, max_effects=args.max_effects, log=eprint)
+    flow = analyse(session, model, models=args.models, seed=args.seed, max_effects=args.max_effects,
+                   screen=args.screen_classes, log=eprint)
     if args.report:
         from uavsim.gap.overlay import write_flow_report
 

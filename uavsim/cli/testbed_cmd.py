@@ -59,6 +59,8 @@ def register(subparsers) -> None:
     c.add_argument("--seed", type=int, default=0, help="seed of the workflow's simulated noise (default 0)")
     c.add_argument("--threads", type=int, default=0, help="MuJoCo threads (default: all CPUs the process may use)")
     c.add_argument("--summarize", action="store_true", help="print the tables of a --log file given as SET")
+    c.add_argument("--screen-classes", action="store_true",
+                   help="identified base models: refit from the best-flying class (`uavsim gap --screen-classes`)")
     c.set_defaults(func=score)
 
 
@@ -160,6 +162,6 @@ def score(args: argparse.Namespace) -> int:
         return 0
     conditions = parse_conditions(args.conditions)
     records = score_set(args.set, models=args.models, conditions=conditions, log=args.log, seed=args.seed,
-                        nthread=args.threads)
+                        nthread=args.threads, screen=args.screen_classes)
     print(summary(records))
     return 0

@@ -8,7 +8,8 @@
    :func:`uavsim.ident.session.identify_session`), saying so. An identified
    model is then refitted on every live run (``K``, ``T_prop``, ``T1``,
    ``tau``: :func:`uavsim.gap.refit.refit_base`; one relay cycle cannot split the
-   lag between ``T_prop`` and ``tau``), and the refit, when it beats the
+   lag between ``T_prop`` and ``tau``; with ``screen``, starting from the class whose
+   model fitted to the same cycle flies the runs best: :func:`class_starts`), and the refit, when it beats the
    identified model, is the base model; its moves are recorded
    (``identification["refit"]``).
 2. **Dead runs.** Measured runs that hold no analysable cycle (a relay that
@@ -82,6 +83,8 @@ __all__ = [
     "decide",
     "absorbed_by",
     "identify_base",
+    "class_starts",
+    "cycle_response",
     "live_runs",
     "format_flow",
     "NONE_GAP",
@@ -278,6 +281,34 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
     return model, ans
 
 
+def cycle_response(ident: dict) -> tuple[complex, float]:
+    """The identified cycle's fundamental response and its period (s), as identification fitted them, from its answer."""
+    r = ident["response"]
+    return complex(r["gain"] * np.exp(1j * math.radians(r["phase_deg"]))), 2 * math.pi / float(r["omega"])
+
+
+def class_starts(ident: dict, model: ModelSpec) -> list[ModelSpec]:
+    """Every other class of the identification's network fitted to its cycle: the refit's screened starts.
+
+    Each class's lags with the gain and delay that put it on the identified cycle's fundamental
+    response (:func:`uavsim.ident.gains.fitted_model`, as identification fits its own class), the
+    model's noise kept. Classes whose fit is not finite are left out; an answer without its
+    network or cycle (``model_dir``, ``response``) gives none.
+    """
+    from uavsim.ident.bundle import load_bundle
+    from uavsim.ident.gains import fitted_model
+
+    if not ident or "model_dir" not in ident or "response" not in ident:
+        return []
+    b = load_bundle(ident["model_dir"])
+    resp, period = cycle_response(ident)
+    cls = np.array([c for c in range(b.n_classes) if c != int(ident["class"])], dtype=np.int64)
+    m = fitted_model(b, cls, np.full(cls.size, resp), np.full(cls.size, period))
+    ok = np.isfinite(m["K"]) & (m["K"] > 0) & np.isfinite(m["tau"])
+    return [dataclasses.replace(model, K=math.copysign(float(m["K"][k]), float(model.K)), T_prop=float(m["T_prop"][k]),
+                                T1=float(m["T1"][k]), tau=float(m["tau"][k])) for k in np.flatnonzero(ok)]
+
+
 def _phase_lag(p: dict, w: float) -> float:
     """Phase lag, rad, of the inner-loop lumped model ``p`` (``T_prop``, ``T1``, ``tau``) at ``w`` rad/s."""
     return -float(unwrapped_phase_batch("attitude", np.array([w]), **{k: float(p[k]) for k in ("T_prop", "T1", "tau")})[0, 0])
@@ -380,6 +411,7 @@ def analyse(
     max_effects: int = MAX_EFFECTS,
     candidates: tuple[str, ...] = CANDIDATES,
     refit: bool = True,
+    screen: bool = False,
     log=None,
 ) -> FlowResult:
     """Run the gap workflow as a user has it: base model, dead runs, effects one by one, the residual.
@@ -400,6 +432,11 @@ def analyse(
     refit : bool
         Refit an identified base model on every run before the search
         (:func:`uavsim.gap.refit.refit_base`); the refit model is the base model.
+    screen : bool
+        Start that refit from the network's class whose model, fitted to the identified cycle,
+        flies the runs best (:func:`class_starts`). Off by default: it lowers the base model's
+        gap, and the naming thresholds (:data:`CLEAN_GAP`, :data:`CLEAN_REMOVAL`) were set
+        without it (docs/results/gap-workflow.md).
     log : callable(str), optional
         Progress messages (the base model's source is always logged).
 
@@ -428,7 +465,8 @@ def analyse(
             f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)"
         )
     if source == "identified" and refit:
-        fit = refit_base(live, model, seed=seed, nthread=nthread, log=log)
+        fit = refit_base(live, model, seed=seed, nthread=nthread, log=log,
+                         starts=class_starts(ident, model) if screen else None)
         ident["refit"] = fit.to_json()
         model = fit.model
     steps: list[GapResult] = []

@@ -19,11 +19,20 @@ high-frequency gain), each with :data:`SEEDS` noise seeds. A move is taken when
 it beats the current point of the same batch; otherwise the steps halve. The
 refit is kept only when, flown again with fresh seeds, it beats the start.
 
+One relay cycle also fits every class of the network (each class's lags with its own gain and
+delay on the cycle's point), and where the process lies outside the grid's box (a long added
+delay) the network's class can be far from the lumped equivalent, beyond the search's reach
+(:data:`SPAN`). So the search starts from the best of ``starts`` when one is given: every class
+fitted to the identified cycle (:func:`uavsim.gap.iterate.class_starts`), flown in one batch
+with the identified model (:data:`SCREEN_SEEDS` noise seeds each) and scored on the same noise
+scales; the search then moves around that start, and its result is still kept only when it
+beats the identified model.
+
 A refit also takes in what a linear model can: a delay, a lag, a low-pass or
 a gain moves ``tau`` or ``K``. :class:`RefitResult` keeps the moves, and
 :func:`uavsim.gap.iterate.absorbed_by` reads them.
 
-    fit = refit_base(session, model, seed=0, log=print)
+    fit = refit_base(session, model, seed=0, log=print, starts=class_starts(ident, model))
     fit.model, fit.gap_before, fit.gap_after, fit.moved
 """
 
@@ -57,6 +66,8 @@ SEEDS = 2
 VERIFY_SEEDS = 3
 #: the refit moves no parameter further than this factor from its start
 SPAN = 4.0
+#: noise seeds per screened start (:func:`refit_base`'s ``starts``)
+SCREEN_SEEDS = 1
 #: smallest delay, s (the log needs one; below a control period it is not seen)
 TAU_FLOOR = 0.0005
 
@@ -78,6 +89,9 @@ class RefitResult:
         Per parameter, refit over start (1.0: not moved; ``tau``: the same, with the floor).
     accepted : bool
         Whether the refit beat the start (else ``model`` is the start).
+    screened : dict or None
+        With ``starts``: the index of the start the search began from (-1: the model itself),
+        its screening gap and the model's (the same noise draw), and how many were screened.
     iterations, episodes : int
         Batches flown in the search and episodes in all.
     seconds : float
@@ -92,6 +106,7 @@ class RefitResult:
     iterations: int
     episodes: int
     seconds: float
+    screened: dict | None = None
 
     def to_json(self) -> dict:
         return {
@@ -104,6 +119,7 @@ class RefitResult:
             "iterations": self.iterations,
             "episodes": self.episodes,
             "seconds": self.seconds,
+            "screened": self.screened,
         }
 
 
@@ -152,6 +168,7 @@ def refit_base(
     nthread: int = 0,
     dt: float = 0.001,
     iterations: int = ITERATIONS,
+    starts: list[ModelSpec] | None = None,
     log=None,
 ) -> RefitResult:
     """Refit ``model``'s ``K``, ``T_prop``, ``T1``, ``tau`` on every run of ``session`` (pattern search on the gap).
@@ -169,6 +186,9 @@ def refit_base(
         As :func:`uavsim.gap.workflow.run_gap`.
     iterations : int
         Most batches of the search.
+    starts : list of ModelSpec, optional
+        Other starting points (their ``K``, ``T_prop``, ``T1``, ``tau``): the search begins from
+        the one of least gap, ``model`` included (module docstring).
     log : callable(str), optional
 
     Returns
@@ -190,12 +210,28 @@ def refit_base(
     ev.scales = noise_scales(fb)
     ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
     x0 = _to_x(model)
-    lo, hi = x0 - math.log(SPAN), x0 + math.log(SPAN)
+    episodes = 3 * R
+    screened = None
+    xs = x0
+    if starts:
+        pts = [model] + [dataclasses.replace(model, K=s.K, T_prop=s.T_prop, T1=s.T1, tau=s.tau) for s in starts]
+        calls = ev.calls
+        g = _gaps(ev, pts, SCREEN_SEEDS)
+        # the search draws the noise it drew without the screen: where the screen keeps the model, the refit is
+        # the one it was
+        ev.calls = calls
+        episodes += len(pts) * SCREEN_SEEDS * R
+        j = int(np.argmin(g))
+        screened = {"start": j - 1, "gap": float(g[j]), "model_gap": float(g[0]), "n": len(starts)}
+        if j > 0:
+            xs = _to_x(pts[j])
+            log(f"refit starts from screened start {j - 1} of {len(starts)}: gap {g[0]:.3f} -> {g[j]:.3f} "
+                f"(T_prop {pts[j].T_prop:.4g} s, T1 {pts[j].T1:.4g} s, tau {pts[j].tau * 1e3:.1f} ms)")
+    lo, hi = xs - math.log(SPAN), xs + math.log(SPAN)
     lo[PARAMS.index("tau")] = min(lo[PARAMS.index("tau")], math.log(TAU_FLOOR))
     steps = np.array([STEPS[k] for k in PARAMS])
     dirs = _directions()
-    x = x0.copy()
-    episodes = 3 * R
+    x = xs.copy()
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007 (the count is reported)
         cand = np.clip(x + dirs * steps, lo, hi)
@@ -222,7 +258,8 @@ def refit_base(
     accepted = bool(g1 < g0)
     res = RefitResult(model=fit if accepted else model, start=model, gap_before=float(g0), gap_after=float(g1),
                       moved=moved if accepted else dict.fromkeys(PARAMS, 1.0), accepted=accepted,
-                      iterations=it, episodes=episodes, seconds=time.perf_counter() - t0)  # fmt: skip
+                      iterations=it, episodes=episodes, seconds=time.perf_counter() - t0,
+                      screened=screened)  # fmt: skip
     log(f"refit on {R} runs: gap {g0:.3f} -> {g1:.3f} ({'kept' if accepted else 'not kept'}; "
         + ", ".join(f"{k} x{v:.3g}" for k, v in moved.items()) + f"; {it} batches, {res.seconds:.1f} s)")
     return res
