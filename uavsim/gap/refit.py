@@ -32,8 +32,11 @@ A refit also takes in what a linear model can: a delay, a lag, a low-pass or
 a gain moves ``tau`` or ``K``. :class:`RefitResult` keeps the moves, and
 :func:`uavsim.gap.iterate.absorbed_by` reads them.
 
-    fit = refit_base(session, model, seed=0, log=print, starts=class_starts(ident, model))
+    fit = refit_base(session, model, seed=0, log=print)
     fit.model, fit.gap_before, fit.gap_after, fit.moved
+    # from the network's best-flying class (ident: identify's answer, uavsim.gap.iterate.identify_base)
+    fit = refit_base(session, model, starts=class_starts(ident, model))
+    fit.screened["start"], fit.screened["gap"]
 """
 
 from __future__ import annotations
