@@ -8,10 +8,10 @@
    :func:`uavsim.ident.session.identify_session`), saying so. An identified
    model is then refitted on every live run (``K``, ``T_prop``, ``T1``,
    ``tau``: :func:`uavsim.gap.refit.refit_base`; one relay cycle cannot split the
-   lag between ``T_prop`` and ``tau``; with ``screen``, starting from the class whose
-   model fitted to the same cycle flies the runs best: :func:`class_starts`), and the refit, when it beats the
-   identified model, is the base model; its moves are recorded
-   (``identification["refit"]``).
+   lag between ``T_prop`` and ``tau``; with ``screen``, starting from the class
+   whose model fitted to the same cycle flies the runs best: :func:`class_starts`),
+   and the refit, when it beats the identified model, is the base model; its
+   moves are recorded (``identification["refit"]``).
 2. **Dead runs.** Measured runs that hold no analysable cycle (a relay that
    stopped oscillating) are dropped, and named; that the relay lost its cycle
    is kept as part of the answer.

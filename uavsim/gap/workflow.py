@@ -589,7 +589,7 @@ def run_gap(
     winner = ranking[0]
     # name an effect only when it explains most of the gap: a gap within noise,
     # or one that no single effect closes, is answered ``none``
-    if gap_before <= NONE_GAP or winner.get("credited", winner["gap"]) > name_ratio * gap_before:
+    if gap_before <= NONE_GAP or winner["credited"] > name_ratio * gap_before:
         winner = ranking[[r["effect"] for r in ranking].index("none")]
     effect = winner["effect"]
     if effect == "none":
