@@ -72,7 +72,7 @@ def write_tiny_dataset(path: Path, n_classes: int = 6, per_class: int = 40, L: i
     return write_dataset(path, eps, classes, tiny_J(n_classes), attrs)
 
 
-def trained_like_net(hidden=(64, 32), period_features: int = 8, seed: int = 0):
+def trained_like_net(hidden=(64, 32), period_features: int = 8, seed: int = 0, phase_samples: int = 0):
     """An ``IdentNet`` (2 x 40 inputs, 5 classes) in eval mode whose BatchNorms are far from the identity,
     as after training: running statistics, scales and shifts drawn at random."""
     import torch
@@ -80,7 +80,8 @@ def trained_like_net(hidden=(64, 32), period_features: int = 8, seed: int = 0):
     from uavsim.learning.model import IdentNet, NetConfig
 
     torch.manual_seed(seed)
-    net = IdentNet(NetConfig(2, 40, 5, hidden=list(hidden), period_features=period_features))
+    net = IdentNet(NetConfig(2, 40, 5, hidden=list(hidden), period_features=period_features,
+                             phase_samples=phase_samples))
     with torch.no_grad():
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm1d):

@@ -196,3 +196,36 @@ def test_numpy_forward_skips_the_zero_padding_exactly(tmp_path):
     np.testing.assert_allclose(pred.activations(x), want, rtol=1e-5, atol=1e-5)
     for i in range(4):  # one input at a time: the skipped columns are that input's own padding
         np.testing.assert_allclose(pred.activations(x[i]), want[i : i + 1], rtol=1e-5, atol=1e-5)
+
+
+def test_phase_resample_puts_one_phase_per_position():
+    """The output's cycle resampled to m points: a ramp over any cycle length stays that ramp, right-aligned
+    with zeros before it; the relay channel is untouched; numpy's copy gives the same numbers."""
+    from uavsim.learning.export import _phase_resample
+    from uavsim.learning.model import phase_resample
+
+    L, m = 40, 16
+    x = np.zeros((4, 2, L), dtype=np.float32)
+    for i, n in enumerate((40, 23, 7)):  # a full input and two padded ones
+        x[i, 0, L - n:] = np.linspace(-1.0, 1.0, n)
+        x[i, 1, L - n:] = np.where(np.arange(n) < n // 2, 1.0, -1.0)
+    x[3, 0] = 5.0  # no cycle in the relay channel: no phase to read
+    got = phase_resample(torch.from_numpy(x), m).numpy()
+    for i in range(3):
+        np.testing.assert_allclose(got[i, 0, L - m:], np.linspace(-1.0, 1.0, m), atol=1e-6)
+    assert not got[:, 0, : L - m].any() and not got[3, 0].any()
+    np.testing.assert_array_equal(got[:, 1], x[:, 1])
+    np.testing.assert_array_equal(_phase_resample(x, m), got)
+    same = phase_resample(torch.from_numpy(x[:1]), L).numpy()  # m = L on a full cycle: the samples themselves
+    np.testing.assert_allclose(same, x[:1], atol=1e-6)
+
+
+def test_phase_samples_train_export_and_refuse_too_many(tmp_path):
+    """A net on phase-resampled cycles trains on the tiny set, and its exported folder says so (meta.json and
+    weights.npz); more points than the set's input length is a one-line error."""
+    rep = train(load_train_recipe(_recipe(tmp_path, net="phase_samples = 16")), quiet=True)
+    assert rep["test"]["top1"] >= 0.9
+    pred = Predictor(Path(rep["out"]))
+    assert pred.meta["net"]["phase_samples"] == 16 and pred.numpy_layers["phase_samples"] == 16
+    with pytest.raises(UserError, match="phase_samples = 100000 exceeds"):
+        train(load_train_recipe(_recipe(tmp_path / "big", net="phase_samples = 100000")), quiet=True)

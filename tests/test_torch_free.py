@@ -37,17 +37,17 @@ def _run_without_torch(code: str, *args: str) -> subprocess.CompletedProcess:
                           env=env, timeout=300, cwd=ROOT)
 
 
-@pytest.mark.parametrize("period_features", [8, 0])
-def test_weights_and_onnx_equal_torch(tmp_path, period_features):
+@pytest.mark.parametrize(("period_features", "phase_samples"), [(8, 0), (0, 0), (8, 16), (0, 40)])
+def test_weights_and_onnx_equal_torch(tmp_path, period_features, phase_samples):
     import onnxruntime as ort
 
-    net = trained_like_net(period_features=period_features)
+    net = trained_like_net(period_features=period_features, phase_samples=phase_samples)
     x = torch.randn(16, 2, 40)
     x[:, 1] = torch.sign(x[:, 1])  # the relay channel: +-1, its length feeds the period features
     x[:8, 1, 25:] = 0.0
     with torch.no_grad():
         want = net(x).numpy()
-    export_model(net, META, tmp_path)
+    export_model(net, dict(META, net=net.cfg.as_dict()), tmp_path)  # the trainer's meta.json holds the net's shape
     meta = json.loads((tmp_path / "meta.json").read_text())
     assert {WEIGHTS_FILE, ONNX_FILE, "model.pt"} <= set(meta["files"])
     pred = Predictor(tmp_path)
@@ -61,6 +61,11 @@ def test_weights_and_onnx_equal_torch(tmp_path, period_features):
     np.testing.assert_allclose(one, want[:1], rtol=1e-5, atol=1e-5)
     with torch.inference_mode():  # and the TorchScript copy agrees
         np.testing.assert_allclose(pred.module(x).numpy(), want, rtol=1e-5, atol=1e-5)
+    assert pred.numpy_layers["phase_samples"] == phase_samples
+    if phase_samples:  # a folder whose weights.npz is written again from the TorchScript copy reads meta.json's
+        (tmp_path / WEIGHTS_FILE).unlink()
+        write_weights(tmp_path)
+        np.testing.assert_allclose(Predictor(tmp_path).activations(x.numpy()), want, rtol=1e-5, atol=1e-5)
 
 
 def test_network_exported_before_weights_npz(tmp_path):

@@ -4,8 +4,10 @@ An exported model is a folder:
 
 * ``weights.npz``: the folded network (BatchNorm's running statistics folded into
   the next Linear layer, Dropout gone) as plain float32 arrays: ``W0, b0, W1, ...``
-  stored input-major ``(in, out)``, and the period features' ``rbf_centres`` and
-  ``rbf_width``. numpy alone runs it (``Predictor``); this is what identification uses.
+  stored input-major ``(in, out)``, the period features' ``rbf_centres`` and
+  ``rbf_width``, and ``phase_samples`` (the output channel's cycle resampled to that
+  many points before the first layer, ``uavsim.learning.model.phase_resample``; 0 or
+  absent: none). numpy alone runs it (``Predictor``); this is what identification uses.
   It also holds the arrays the trainer hands over for identification (``J``: the
   cost matrix of the class decision, ``uavsim.ident.select``);
 * ``model.onnx``: the same network for ONNX runtimes (opset 17, dynamic batch),
@@ -145,13 +147,14 @@ def _onnx_bytes(module, example) -> bytes:
 def _write_weights(path: Path, net: dict[str, Any], extra: dict[str, np.ndarray] | None = None) -> None:
     arrays: dict[str, np.ndarray] = {"format": np.array(WEIGHTS_FORMAT), "n_layers": np.array(len(net["layers"]))}
     for k, v in (extra or {}).items():
-        if k in arrays or (k[:1] in ("W", "b") and k[1:].isdigit()) or k.startswith("rbf_"):
+        if k in arrays or (k[:1] in ("W", "b") and k[1:].isdigit()) or k.startswith("rbf_") or k == "phase_samples":
             raise ValueError(f"{k!r} is a name of the network's own arrays")
         arrays[k] = np.asarray(v, dtype=np.float64)
     for j, (W, b) in enumerate(net["layers"]):
         arrays[f"W{j}"], arrays[f"b{j}"] = W, b
     c, w = net["rbf"] if net["rbf"] is not None else (np.zeros(0, np.float32), np.float32(0.0))
     arrays["rbf_centres"], arrays["rbf_width"] = np.asarray(c, np.float32), np.asarray(w, np.float32)
+    arrays["phase_samples"] = np.array(int(net.get("phase_samples", 0)))
 
     def write(p: str) -> None:
         with open(p, "wb") as f:
@@ -171,13 +174,14 @@ def _read_weights(path: Path) -> dict[str, Any]:
                       for j in range(n)]
             c = np.asarray(z["rbf_centres"], np.float32)
             rbf = (c, np.float32(z["rbf_width"])) if c.size else None
+            m = int(z["phase_samples"]) if "phase_samples" in z.files else 0  # files before it: none
     except (OSError, ValueError, KeyError) as exc:
         raise UserError(f"{path}: not a weights file ({exc})") from None
     for j in range(1, n):
         if layers[j][0].shape[0] != layers[j - 1][0].shape[1]:
             raise UserError(f"{path}: layer {j} takes {layers[j][0].shape[0]} inputs, layer {j - 1} gives "
                             f"{layers[j - 1][0].shape[1]}")
-    return {"layers": layers, "rbf": rbf}
+    return {"layers": layers, "rbf": rbf, "phase_samples": m}
 
 
 def write_weights(model_dir: str | os.PathLike) -> Path:
@@ -319,7 +323,11 @@ def _numpy_layers(module, meta: dict[str, Any]) -> dict[str, Any] | None:
         rbf = (c, np.float32(c[1] - c[0]))
     else:
         return None
-    return {"layers": Ws, "rbf": rbf}
+    # an IdentNet knows its resampling; a loaded TorchScript copy does not, its meta.json does
+    m = getattr(getattr(module, "cfg", None), "phase_samples", None)
+    if m is None:
+        m = (meta.get("net") or {}).get("phase_samples", 0)
+    return {"layers": Ws, "rbf": rbf, "phase_samples": int(m or 0)}
 
 
 def _forward_numpy(net: dict[str, Any], x: np.ndarray) -> np.ndarray:
@@ -330,6 +338,9 @@ def _forward_numpy(net: dict[str, Any], x: np.ndarray) -> np.ndarray:
     channel: the same sum without its zero terms (a cycle half the input's length halves the
     largest matmul; float32 rounding may differ in the last bits from the full product).
     """
+    m = net.get("phase_samples", 0)
+    if m:
+        x = _phase_resample(x, m)
     B, C, L = x.shape
     nz = np.flatnonzero(x.any(axis=(0, 1)))
     s = int(nz[0]) if nz.size else L
@@ -346,6 +357,25 @@ def _forward_numpy(net: dict[str, Any], x: np.ndarray) -> np.ndarray:
         h = h @ W
         h += b
     return h
+
+
+def _phase_resample(x: np.ndarray, m: int) -> np.ndarray:
+    """``uavsim.learning.model.phase_resample`` in numpy, float32 like the network (same formula)."""
+    B, C, L = x.shape
+    n = np.count_nonzero(x[:, -1, :], axis=1)
+    step = (np.maximum(n - 1, 0).astype(np.float32) / np.float32(max(m - 1, 1)))
+    t = (L - n).astype(np.float32)[:, None] + np.arange(m, dtype=np.float32)[None, :] * step[:, None]
+    i0 = np.clip(np.floor(t), 0, L - 1)
+    w = (t - i0).astype(np.float32)
+    i0 = i0.astype(np.int64)
+    i1 = np.minimum(i0 + 1, L - 1)
+    y = x[:, 0, :]
+    yp = np.take_along_axis(y, i0, 1) * (np.float32(1.0) - w) + np.take_along_axis(y, i1, 1) * w
+    yp[n < 2] = 0.0
+    out = x.copy()
+    out[:, 0, : L - m] = 0.0
+    out[:, 0, L - m :] = yp
+    return out
 
 
 def _main(argv: list[str]) -> int:

@@ -21,7 +21,31 @@ from dataclasses import asdict, dataclass, field
 import torch
 from torch import nn
 
-__all__ = ["NetConfig", "IdentNet", "InputMajorLinear"]
+__all__ = ["NetConfig", "IdentNet", "InputMajorLinear", "phase_resample"]
+
+
+def phase_resample(x: torch.Tensor, m: int) -> torch.Tensor:
+    """Inputs (B, C, L) with channel 0's cycle resampled to ``m`` points, right-aligned (``NetConfig.phase_samples``).
+
+    The cycle is where the last channel (the relay, +-1) is non-zero: ``n`` samples
+    ending at ``L - 1``. Point ``k`` of ``m`` is the linear interpolation of channel 0
+    at sample ``L - n + k (n - 1) / (m - 1)``; the row left of the ``m`` points is zero.
+    An input with fewer than 2 cycle samples gets a zero row. The other channels are
+    returned unchanged. ``uavsim.learning.export`` does the same in numpy.
+    """
+    B, C, L = x.shape
+    n = (x[:, -1, :] != 0).sum(dim=1)
+    step = (n - 1).clamp_min(0).to(x.dtype) / float(max(m - 1, 1))
+    t = (L - n).to(x.dtype)[:, None] + torch.arange(m, dtype=x.dtype, device=x.device)[None, :] * step[:, None]
+    i0 = t.floor().clamp(0, L - 1)
+    w = t - i0
+    i0 = i0.long()
+    i1 = (i0 + 1).clamp(max=L - 1)
+    y = x[:, 0, :]
+    yp = torch.gather(y, 1, i0) * (1.0 - w) + torch.gather(y, 1, i1) * w
+    yp = torch.where((n >= 2)[:, None], yp, torch.zeros_like(yp))
+    row = torch.cat([torch.zeros(B, L - m, dtype=x.dtype, device=x.device), yp], dim=1)
+    return torch.cat([row[:, None, :], x[:, 1:, :]], dim=1)
 
 
 class InputMajorLinear(nn.Module):
@@ -67,6 +91,17 @@ class NetConfig:
         layer must otherwise learn where the zero padding ends.
     period_range_s : tuple of float
         Period span (s at 200 Hz) the basis covers.
+    phase_samples : int
+        0: the output channel as preprocessed (right-aligned samples, the paper's
+        input). ``m > 0``: the output channel's cycle (where the relay channel is
+        non-zero) resampled to ``m`` points by linear interpolation and
+        right-aligned in a zero row (``phase_resample``), so that one sample
+        position is one phase of the cycle whatever its length; the relay
+        channel and the period features keep the cycle's length. Not in the
+        paper: on raw samples two processes whose periods differ by a few
+        percent show their cycles' edges several samples apart, and a fully
+        connected layer trained on the grid's classes reads that shift as
+        another class (docs/results/identification.md).
     """
 
     channels: int
@@ -76,6 +111,7 @@ class NetConfig:
     dropout: float = 0.4
     period_features: int = 0
     period_range_s: tuple[float, float] = (0.05, 3.0)
+    phase_samples: int = 0
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -131,6 +167,8 @@ class IdentNet(nn.Module):
         return folded.eval()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.cfg.phase_samples:
+            x = phase_resample(x, self.cfg.phase_samples)
         flat = x.flatten(1)
         if self.cfg.period_features:
             # cycle length in samples: the relay channel (last) is +-1 on the cycle, 0 in the padding

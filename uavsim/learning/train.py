@@ -104,6 +104,9 @@ class TrainRecipe:
     dropout : float
     period_features : int
         Radial-basis features of the cycle length appended to the input (``NetConfig``; 0: the paper's net).
+    phase_samples : int
+        Points the output channel's cycle is resampled to, one per phase (``NetConfig``; 0: the
+        preprocessed samples as they are, the paper's input).
     lr : float
         Adam learning rate.
     lr_decay : float
@@ -147,6 +150,7 @@ class TrainRecipe:
     hidden: list[int] = field(default_factory=lambda: [3000, 1000])
     dropout: float = 0.4
     period_features: int = 0
+    phase_samples: int = 0
     lr: float = 0.01
     lr_decay: float = 0.7
     lr_step_epochs: int = 20
@@ -169,12 +173,14 @@ class TrainRecipe:
             d.pop(k)
         if d["loss_target"] == "label":  # the default: recipes written before it keep their fingerprint
             d.pop("loss_target")
+        if not d["phase_samples"]:  # likewise
+            d.pop("phase_samples")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
 _SECTIONS = {
     "": ("format", "name", "loop", "dataset", "out", "test_dataset", "attitude_classes", "seed", "device", "threads"),
-    "net": ("hidden", "dropout", "period_features"),
+    "net": ("hidden", "dropout", "period_features", "phase_samples"),
     "optim": ("lr", "lr_decay", "lr_step_epochs", "batch_size", "epochs", "weight_decay"),
     "early_stopping": ("val_fraction", "patience", "min_delta", "max_minutes"),
     "loss": ("kind", "weight", "target"),
@@ -240,7 +246,8 @@ def _check_recipe(r: TrainRecipe) -> None:
         ("val_fraction", 0 < r.val_fraction < 1), ("patience", r.patience >= 1), ("max_minutes", r.max_minutes >= 0),
         ("hidden", isinstance(r.hidden, list) and all(isinstance(h, int) and h > 0 for h in r.hidden)),
         ("threads", r.threads >= 0), ("weight_decay", r.weight_decay >= 0),
-        ("period_features", r.period_features >= 0), ("loss_kind", r.loss_kind in LOSS_KINDS),
+        ("period_features", r.period_features >= 0), ("phase_samples", r.phase_samples >= 0),
+        ("loss_kind", r.loss_kind in LOSS_KINDS),
         ("loss_weight", r.loss_weight >= 0), ("loss_target", r.loss_target in LOSS_TARGETS),
     ]
     for name, ok in checks:
@@ -570,8 +577,11 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     if device.type == "cuda":
         Xtr, ytr = Xtr.to(device), ytr.to(device)
 
+    if recipe.phase_samples > L:
+        raise UserError(f"{recipe.source or 'recipe'}: phase_samples = {recipe.phase_samples} exceeds the set's "
+                        f"input length {L}")
     cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout,
-                    period_features=recipe.period_features)
+                    period_features=recipe.period_features, phase_samples=recipe.phase_samples)
     net = IdentNet(cfg).to(device)
     loss_fn = JWeightedLoss(data.J, kind=recipe.loss_kind, weight=recipe.loss_weight).to(device)
     opt = torch.optim.Adam(net.parameters(), lr=recipe.lr, weight_decay=recipe.weight_decay)

@@ -20,6 +20,9 @@ class Net(Table):
     hidden: Annotated[list[PosInt], Field(min_length=1)] | None = Field(default=None, description="default [3000, 1000]")
     dropout: Annotated[float, Field(ge=0, lt=1)] | None = Field(default=None, description="default 0.4")
     period_features: NonNegInt | None = Field(default=None, description="default 0 (the paper's net)")
+    phase_samples: NonNegInt | None = Field(
+        default=None, description="points the output's cycle is resampled to, one per phase; default 0 (the samples as "
+                                  "preprocessed, the paper's input)")
 
 
 class Optim(Table):
