@@ -3,7 +3,11 @@
 Layer order follows the authors' code (NOTES.md section 2):
 ``FC 3000 -> ReLU -> BatchNorm -> Dropout 0.4 -> FC 1000 -> ReLU -> BatchNorm ->
 Dropout 0.4 -> FC n_classes``. The input is one preprocessed cycle of C channels
-and L samples (``uavsim.data.preprocess``), flattened to C*L. The outputs are the
+and L samples (``uavsim.data.preprocess``), flattened to C*L; two departures, both
+options of ``NetConfig`` and both computed from the input itself: radial-basis
+features of the cycle's length appended (``period_features``), and the output
+channel's cycle resampled to a fixed number of points (``phase_samples``,
+``phase_resample``). The outputs are the
 raw activations ``a``; the J-weighted softmax of ``uavsim.learning.loss`` is
 applied only in training, and the predicted class is ``argmax a``.
 
