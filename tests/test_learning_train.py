@@ -227,5 +227,7 @@ def test_phase_samples_train_export_and_refuse_too_many(tmp_path):
     assert rep["test"]["top1"] >= 0.9
     pred = Predictor(Path(rep["out"]))
     assert pred.meta["net"]["phase_samples"] == 16 and pred.numpy_layers["phase_samples"] == 16
+    big = load_train_recipe(_recipe(tmp_path / "big", net="phase_samples = 100000"))
     with pytest.raises(UserError, match="phase_samples = 100000 exceeds"):
-        train(load_train_recipe(_recipe(tmp_path / "big", net="phase_samples = 100000")), quiet=True)
+        train(big, quiet=True)
+    assert not Path(big.out).exists()

@@ -555,14 +555,18 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     """
     if "{att" in recipe.dataset:
         raise UserError("lateral recipes train one network per attitude class: use train_from_recipe")
-    out = Path(recipe.out)
-    out.mkdir(parents=True, exist_ok=True)
     data = load_training_data(recipe.dataset)
     if recipe.loss_target == "best":
         data.labels = best_classes(data, recipe.dataset)
     N, C, L = data.X.shape
     if N < 2 * data.n_classes and N < 10:
         raise UserError(f"{recipe.dataset}: only {N} samples for {data.n_classes} classes")
+    if recipe.phase_samples > L:
+        raise UserError(f"{recipe.source or 'recipe'}: phase_samples = {recipe.phase_samples} exceeds the set's "
+                        f"input length {L}")
+    # made once the recipe and its set are known to fit: a refused run leaves no empty folder
+    out = Path(recipe.out)
+    out.mkdir(parents=True, exist_ok=True)
     seed = int(recipe.seed)
     torch.manual_seed(seed)
     # 0: the CPUs this process may use (torch's own default counts the host's)
@@ -577,9 +581,6 @@ def train(recipe: TrainRecipe, resume: bool = False, quiet: bool = False) -> dic
     if device.type == "cuda":
         Xtr, ytr = Xtr.to(device), ytr.to(device)
 
-    if recipe.phase_samples > L:
-        raise UserError(f"{recipe.source or 'recipe'}: phase_samples = {recipe.phase_samples} exceeds the set's "
-                        f"input length {L}")
     cfg = NetConfig(C, L, data.n_classes, list(recipe.hidden), recipe.dropout,
                     period_features=recipe.period_features, phase_samples=recipe.phase_samples)
     net = IdentNet(cfg).to(device)
