@@ -334,19 +334,21 @@ def _forward_numpy(net: dict[str, Any], x: np.ndarray) -> np.ndarray:
     """``IdentNet.forward`` of the folded network in numpy: x (B, C, L) float32 -> (B, n_classes) float32.
 
     The inputs are right-aligned and zero-padded (``uavsim.data.preprocess``), so the first
-    layer multiplies only the columns from the first non-zero sample of the batch on, per
-    channel: the same sum without its zero terms (a cycle half the input's length halves the
-    largest matmul; float32 rounding may differ in the last bits from the full product).
+    layer multiplies only the columns from each channel's first non-zero sample of the batch
+    on: the same sum without its zero terms (a cycle half the input's length halves the
+    largest matmul; float32 rounding may differ in the last bits from the full product). Each
+    channel has its own start because a phase-resampled output channel (``phase_samples``)
+    spans its ``m`` points while the relay channel spans the cycle's samples.
     """
     m = net.get("phase_samples", 0)
     if m:
         x = _phase_resample(x, m)
     B, C, L = x.shape
-    nz = np.flatnonzero(x.any(axis=(0, 1)))
-    s = int(nz[0]) if nz.size else L
     (W0, b0), rest = net["layers"][0], net["layers"][1:]
     h = np.broadcast_to(b0, (B, b0.size)).copy()
     for ch in range(C):
+        nz = np.flatnonzero(x[:, ch, :].any(axis=0))
+        s = int(nz[0]) if nz.size else L
         h += x[:, ch, s:] @ W0[ch * L + s : (ch + 1) * L]
     if net["rbf"] is not None:
         c, w = net["rbf"]
