@@ -325,3 +325,57 @@ def test_declined_proposal_keeps_the_searchs_model(monkeypatch):
     flow = iterate.analyse(_session())
     assert flow.answer == "unexplained" and flow.found == [] and flow.steps[0].effect == "none"
     assert flow.gap_after == 10.0 and flow.steps[0].ranking[0]["effect"] == "rate_limit"
+
+
+def _identified(monkeypatch, noise_std, loop="pitch", staircase=False):
+    ident = {"run": "r0.csv", "class": 3, "params": {"tau": 0.01}, "class_params": {"tau": 0.01},
+             "oscillation": {"period": 0.5}, "refused_runs": []}  # fmt: skip
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=noise_std)
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
+    s = _session(loop=loop)
+    if staircase:  # every sample held twice: a frame-rate staircase
+        for r in s.runs:
+            r.data.y[1::2] = r.data.y[0::2][: r.data.y[1::2].size]
+    s.model = None
+    return s
+
+
+def test_noise_is_named_from_its_level_where_the_gap_cannot_show_it(monkeypatch):
+    level = iterate.NOISE_STD["attitude"]
+    calls = _script(monkeypatch, [("none", 2.0, 2.0)])
+    msgs = []
+    flow = iterate.analyse(_identified(monkeypatch, 2.0 * level), log=msgs.append)
+    assert flow.answer == "named" and flow.to_json()["found"] == [{"name": "noise", "std": 2.0 * level}]
+    assert flow.by_level == ["noise"] and flow.to_json()["by_level"] == ["noise"]
+    assert "noise" not in calls[0]["candidates"]  # the model already carries it: not searched again
+    assert any(m.startswith("noise named from its level") for m in msgs)
+    assert "from its level" in iterate.format_flow(flow)
+    # under the level, the same session names nothing and the search may try noise
+    calls = _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 0.5 * level))
+    assert flow.answer == "none" and flow.found == [] and "noise" in calls[0]["candidates"]
+
+
+def test_noise_by_level_is_off_on_a_staircase_and_where_clean_sessions_overlap(monkeypatch):
+    level = iterate.NOISE_STD["attitude"]
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    assert iterate.analyse(_identified(monkeypatch, 2.0 * level, staircase=True)).found == []
+    assert iterate.NOISE_STD["altitude"] is None
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 1.0, loop="altitude"))
+    assert flow.answer == "none" and flow.found == []
+    # a session's own model is not measured: the rule is the identified path's only
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    s = _session()
+    s.model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=2.0 * level)
+    assert iterate.analyse(s).found == []
+
+
+def test_noise_by_level_leaves_one_place_for_the_search(monkeypatch):
+    level = iterate.NOISE_STD["attitude"]
+    calls = _script(monkeypatch, [("bias", 10.0, 3.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 2.0 * level), max_effects=2)
+    assert [e.name for e in flow.found] == ["noise", "bias"] and len(calls) == 1
+    calls = _script(monkeypatch, [("bias", 10.0, 3.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 2.0 * level), max_effects=1)
+    assert [e.name for e in flow.found] == ["noise"] and flow.steps[0].effect == "none"

@@ -29,6 +29,11 @@
    candidate takes the phase it adds at the identified cycle out of ``tau``
    (the identification already put that phase there), and a named one
    leaves the shorter ``tau`` in the model.
+   An identified model carries the measured noise in its ``noise_std`` (the relay
+   run's own), so an added noise source leaves no gap: where that std is over
+   :data:`NOISE_STD` of the loop family (what clean sessions stay under) and the
+   samples hold no staircase, the measurement's noise is named ``noise`` from its
+   level (:func:`noise_by_level`) and the search does not try it again.
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
    clean sessions of the testbed vehicle, development seeds), ``absorbed``
@@ -72,6 +77,7 @@ from uavsim.gap.workflow import (
     GapResult,
     UnflownRun,
     credited_gap,
+    data_hints,
     format_table,
     run_gap,
 )
@@ -92,6 +98,8 @@ __all__ = [
     "accepts",
     "clean_credit",
     "excess_share",
+    "noise_by_level",
+    "NOISE_STD",
 ]
 
 #: most effects added one after the other
@@ -135,6 +143,15 @@ ABSORB_TAU_SHARE = 0.028
 #: refit model adds at the identified cycle beyond its class's, as a delay over the period; 10%
 #: above the largest on the 7 clean sessions of development seeds 0-23 (0.0197)
 ABSORB_REFIT_SHARE = 0.022
+#: per loop family, the identified (refitted) model's noise std (loop units: rad for attitude) above which
+#: the measurement's noise is named from its level (:func:`noise_by_level`); None: never. Attitude: 40 %
+#: above the largest on the attitude testbed sessions of development seeds 0-39 and of the former
+#: held-out seeds 30000-30063 that hold neither a hidden noise nor a staircase (1.42e-4 rad, a delay
+#: single; clean ones at most 8.7e-5; those with a hidden noise: 2.5e-4-5.3e-4). Altitude: none, because
+#: its clean sessions' camera noise (1.1e-3-2.4e-3 m) spans that of its noise sessions (2.3e-3-5.6e-3) and
+#: of other effects' (a low-pass: 4.1e-3; docs/results/gap-workflow.md). Set on the testbed vehicle: an
+#: aircraft with another IMU chain has its own clean level
+NOISE_STD: dict[str, float | None] = {"altitude": None, "attitude": 2.0e-4}
 
 
 @dataclass
@@ -164,6 +181,9 @@ class FlowResult:
         :func:`uavsim.gap.residual.residual_character` of what the final model leaves.
     gap_before, gap_after : float
         The base model's gap and the final model's.
+    by_level : list of str
+        Effects in ``found`` named from the measured level rather than the gap
+        (:func:`noise_by_level`).
     seconds : float
         Wall time, identification included.
     """
@@ -181,6 +201,7 @@ class FlowResult:
     gap_after: float
     seconds: float
     session: Session | None = field(default=None, repr=False)
+    by_level: list[str] = field(default_factory=list)
 
     @property
     def final(self) -> GapResult:
@@ -197,6 +218,7 @@ class FlowResult:
                 "effect": self.found[-1].name if self.found else "none",  # vocabulary name; the kind is in "answer"
                 "params": dict(self.found[-1].params) if self.found else {},
                 "found": [{"name": e.name, **e.params} for e in self.found],
+                "by_level": list(self.by_level),
                 "gap_before": self.gap_before,
                 "gap_after": self.gap_after,
                 "base_source": self.base_source,
@@ -350,6 +372,23 @@ def absorbed_by(ident: dict | None) -> dict | None:
             "effects": ["delay", "lag", "lowpass"]}  # fmt: skip
 
 
+def noise_by_level(model: ModelSpec, loop: str, *, staircase: bool = False) -> EffectSpec | None:
+    """``noise`` named from the identified model's noise level, or None (module docstring, step 3).
+
+    The identified model's ``noise_std`` is measured on the session's own relay run, so it
+    already holds any noise the vehicle adds and the gap cannot show it; its level can:
+    beyond :data:`NOISE_STD` of the loop family the effect is ``noise`` with that std (the
+    clean part included: a few percent of it in squares). A ``staircase`` (quantized or
+    held samples, :func:`uavsim.gap.workflow.data_hints`) has its own steps in that std,
+    so it names nothing.
+    """
+    level = NOISE_STD[family(loop)]
+    std = float(model.noise_std or 0.0)
+    if level is None or staircase or not std > level:
+        return None
+    return EffectSpec("noise", {"std": std})
+
+
 def clean_credit(loop: str) -> dict[str, float]:
     """Per candidate, the squared gap it removes from a clean session of ``loop``'s family (``run_gap``'s ``credit``)."""
     f = CLEAN_GAP[family(loop)]
@@ -472,6 +511,15 @@ def analyse(
     steps: list[GapResult] = []
     found: list[EffectSpec] = []
     cur, cur_model = live, model
+    by_level = None
+    if source == "identified":
+        by_level = noise_by_level(model, session.loop, staircase=bool(data_hints(live, live.control_rate_hz)))
+    if by_level is not None:
+        log(f"noise named from its level: the identified model's noise std {by_level.params['std']:.3g} is over "
+            f"{NOISE_STD[family(session.loop)]:.3g}, the most a clean session of the testbed vehicle's "
+            f"{family(session.loop)} loop shows; the gap cannot show it (the model carries it)")
+        found.append(by_level)
+        candidates = tuple(c for c in candidates if c != "noise")
     # an identified model's tau holds the phase of its relay cycle: lag-like candidates take theirs out of it
     anchor_hz = None
     if source == "identified" and (ident.get("oscillation") or {}).get("period"):
@@ -510,6 +558,8 @@ def analyse(
             live = cur
             live_runs(cur)  # a relay run must be left
             continue
+        if res.effect != "none" and len(found) >= max_effects:
+            res = declined(res, cur_model)  # the level's noise took the last place
         if res.effect != "none" and not accepts(res.gap_before, res.gap_after, session.loop, source == "identified",
                                                 res.effect):
             log(f"search {len(steps) + 1}: {res.effect} {res.params} leaves {res.gap_after:.3f} of "
@@ -534,7 +584,8 @@ def analyse(
     answer = decide(bool(found), gap_before, session.loop, absorbed)
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
-                      gap_after=gap_after, seconds=time.perf_counter() - t0, session=live)  # fmt: skip
+                      gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
+                      by_level=[by_level.name] if by_level is not None else [])  # fmt: skip
 
 
 def format_flow(flow: FlowResult) -> str:
@@ -553,7 +604,8 @@ def format_flow(flow: FlowResult) -> str:
         lines.append(
             "answer: named "
             + " + ".join(
-                f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items()) + ")"
+                f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
+                + ("; from its level, which the gap cannot show" if e.name in flow.by_level else "") + ")"
                 for e in flow.found
             )
         )
