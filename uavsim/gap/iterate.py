@@ -516,8 +516,8 @@ def analyse(
         by_level = noise_by_level(model, session.loop, staircase=bool(data_hints(live, live.control_rate_hz)))
     if by_level is not None:
         log(f"noise named from its level: the identified model's noise std {by_level.params['std']:.3g} is over "
-            f"{NOISE_STD[family(session.loop)]:.3g}, the most a clean session of the testbed vehicle's "
-            f"{family(session.loop)} loop shows; the gap cannot show it (the model carries it)")
+            f"{NOISE_STD[family(session.loop)]:.3g}, which the testbed vehicle's {family(session.loop)} sessions "
+            "without a noise source stay under; the gap cannot show it (the model carries it)")
         found.append(by_level)
         candidates = tuple(c for c in candidates if c != "noise")
     # an identified model's tau holds the phase of its relay cycle: lag-like candidates take theirs out of it
