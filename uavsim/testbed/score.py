@@ -83,7 +83,8 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
         rec.update({"answer": "error", "error": str(exc), "ok": False, "seconds": time.perf_counter() - t0})
         return rec
     j = flow.to_json()
-    rec.update({"answer": flow.answer, "found": j["found"], "gap_before": flow.gap_before, "gap_after": flow.gap_after,
+    rec.update({"answer": flow.answer, "found": j["found"], "by_level": j["by_level"],
+                "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
@@ -126,6 +127,7 @@ def summary(records: list[dict]) -> str:
         out.append("|---|---|---|---|---|---|---|---|---|")
         for r in rs:
             found = "; ".join(f["name"] + " " + ", ".join(f"{k} {v:.4g}" for k, v in f.items() if k != "name")
+                              + (" (from its level)" if f["name"] in (r.get("by_level") or ()) else "")
                               for f in r.get("found") or [])  # fmt: skip
             if r["answer"] == "absorbed":
                 found = f"tau +{r['absorbed']['moved_s'] * 1e3:.1f} ms"

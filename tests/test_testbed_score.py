@@ -1,0 +1,44 @@
+"""``uavsim testbed score``'s log record and summary: what the gap workflow answered, scored against the truth."""
+
+import json
+
+from uavsim.testbed import score
+
+
+def _truth(tmp_path, kind="single", effects=({"name": "noise", "params": {"std": 3e-4}},)):
+    folder = tmp_path / "tb_00001"
+    folder.mkdir()
+    t = {"name": "tb_00001", "kind": kind, "loop": "roll", "effects": list(effects)}
+    (tmp_path / "tb_00001.truth.json").write_text(json.dumps(t))
+    return folder
+
+
+class _Flow:
+    answer = "named"
+    gap_before = gap_after = 2.5
+    absorbed = None
+    dropped: list = []
+    residual = {"summary": ""}
+    identification = None
+    steps: list = []
+
+    def to_json(self):
+        return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "steps": [],
+                "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=2.6e-4)}  # fmt: skip
+
+
+def test_record_keeps_what_was_named_from_its_level(tmp_path, monkeypatch):
+    folder = _truth(tmp_path)
+    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "analyse", lambda *a, **k: _Flow())
+    monkeypatch.setattr(_Flow, "steps", [type("S", (), {"ranking": []})()])
+    r = score.one(folder, None, "identified", 0)
+    assert r["by_level"] == ["noise"] and r["ok"] and abs(r["param_rel_err"] - 0.4 / 3) < 1e-9
+    table = score.summary([r])
+    assert "noise std 0.00026 (from its level)" in table and "| yes |" in table
+
+
+def test_summary_of_a_record_without_the_field():
+    r = {"name": "tb_9", "condition": "identified", "kind": "none", "loop": "roll", "truth": "none",
+         "answer": "none", "found": [], "gap_before": 3.0, "gap_after": 3.0, "ok": True, "seconds": 50.0}  # fmt: skip
+    assert "| tb_9 | none | roll | none | none |  | 3.00 -> 3.00 | yes | 50 |" in score.summary([r])
