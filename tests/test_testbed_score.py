@@ -1,6 +1,7 @@
 """``uavsim testbed score``'s log record and summary: what the gap workflow answered, scored against the truth."""
 
 import json
+from types import SimpleNamespace
 
 from uavsim.testbed import score
 
@@ -20,7 +21,7 @@ class _Flow:
     dropped: list = []
     residual = {"summary": ""}
     identification = None
-    steps: list = []
+    steps = [SimpleNamespace(ranking=[])]
 
     def to_json(self):
         return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "steps": [],
@@ -31,7 +32,6 @@ def test_record_keeps_what_was_named_from_its_level(tmp_path, monkeypatch):
     folder = _truth(tmp_path)
     monkeypatch.setattr(score, "read_session", lambda f: None)
     monkeypatch.setattr(score, "analyse", lambda *a, **k: _Flow())
-    monkeypatch.setattr(_Flow, "steps", [type("S", (), {"ranking": []})()])
     r = score.one(folder, None, "identified", 0)
     assert r["by_level"] == ["noise"] and r["ok"] and abs(r["param_rel_err"] - 0.4 / 3) < 1e-9
     table = score.summary([r])
