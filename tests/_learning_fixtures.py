@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -168,3 +169,41 @@ class ClassNetwork:
         a = np.zeros((1, self.n_classes), np.float32)
         a[0, self.cls] = self.logit
         return a
+
+
+def lateral_grid_bundle(a: int):
+    """Attitude class ``a``'s lateral sub-grid, a bundle of its classes and table with a ``ClassNetwork``
+    stand-in (sure of one class), and its attitude loop."""
+    from uavsim.data.assemble import class_table_gains
+    from uavsim.ident.bundle import ModelBundle
+    from uavsim.tuning.grid import load_grid
+    from uavsim.tuning.table import load_table
+
+    sub = load_grid("lateral").lateral(a)
+    tab = class_table_gains("lateral", 200.0, a)
+    classes = {k: np.asarray(sub.params[k], float) for k in ("T2", "tau")}
+    classes["period"] = 2 * np.pi / np.asarray(sub.omega, float)
+    classes.update({k: v for k, v in tab.items() if k != "J"})
+    att = dict(load_table("lateral").lateral(a).attitude)
+    b = ModelBundle(dir=Path("grid"), loop="lateral", rate_hz=200.0, rule=sub.rule, input_length=0, cycles=1,
+                    input_rate_hz=200.0, classes=classes, predictor=ClassNetwork(sub.n, logit=8.0), meta={}, attitude=att,
+                    att_class=a, cost=tab["J"], temperature=1.0, decision="bayes")
+    return sub, b, att
+
+
+def lateral_class_truths(sub, b, att):
+    """The sub-grid's classes as true processes (K = 1), their optima and exact responses at their MRFT points."""
+    from uavsim.lumped.lateral import lateral_response_sampled
+    from uavsim.tuning.optimal import optimal_gains
+
+    n = sub.n
+    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
+             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
+             "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
+             "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
+    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
+    w = np.asarray(sub.omega, float)
+    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
+                                                                       if k != "att_rate_hz"})[0][0]
+                  for t in range(n)])
+    return truth, q_opt, w, G

@@ -8,30 +8,12 @@ decision's answer is judged by the exact sampled ISE at 200 Hz (``uavsim.ident.e
 """
 
 import math
-from pathlib import Path
 
 import numpy as np
-from _learning_fixtures import ClassNetwork
+from _learning_fixtures import lateral_class_truths as _measured
+from _learning_fixtures import lateral_grid_bundle as _lateral_bundle
 
 A = 11  # an attitude class whose lateral sub-grid has many class pairs unstable on each other
-
-
-def _lateral_bundle(a: int):
-    from uavsim.data.assemble import class_table_gains
-    from uavsim.ident.bundle import ModelBundle
-    from uavsim.tuning.grid import load_grid
-    from uavsim.tuning.table import load_table
-
-    sub = load_grid("lateral").lateral(a)
-    tab = class_table_gains("lateral", 200.0, a)
-    classes = {k: np.asarray(sub.params[k], float) for k in ("T2", "tau")}
-    classes["period"] = 2 * np.pi / np.asarray(sub.omega, float)
-    classes.update({k: v for k, v in tab.items() if k != "J"})
-    att = dict(load_table("lateral").lateral(a).attitude)
-    b = ModelBundle(dir=Path("grid"), loop="lateral", rate_hz=200.0, rule=sub.rule, input_length=0, cycles=1,
-                    input_rate_hz=200.0, classes=classes, predictor=ClassNetwork(sub.n, logit=8.0), meta={}, attitude=att,
-                    att_class=a, cost=tab["J"], temperature=1.0, decision="bayes")
-    return sub, b, att
 
 
 def test_stable_decision_avoids_answers_unstable_on_the_measured_process():
@@ -70,24 +52,6 @@ def test_stable_decision_avoids_answers_unstable_on_the_measured_process():
     assert len(J_bayes) >= 40
     assert np.isfinite(J_stable).mean() >= 0.75
     assert np.median(J_stable) < 1.2
-
-
-def _measured(sub, b, att):
-    """The sub-grid's classes as true processes (K = 1), their optima and exact responses at their MRFT points."""
-    from uavsim.lumped.lateral import lateral_response_sampled
-    from uavsim.tuning.optimal import optimal_gains
-
-    n = sub.n
-    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
-             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
-             "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
-             "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
-    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
-    w = np.asarray(sub.omega, float)
-    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
-                                                                       if k != "att_rate_hz"})[0][0]
-                  for t in range(n)])
-    return truth, q_opt, w, G
 
 
 def test_stable_decision_backs_off_where_the_cycles_disagree():

@@ -47,6 +47,10 @@ def register(subparsers) -> None:
                    help="identification backs its PD off by the phase-margin guard (uavsim.ident.guard; default: "
                         "identification's, on for the inner loops); the row answer_guarded scores the guard in "
                         "every run")
+    p.add_argument("--family", action=argparse.BooleanOptionalAction, default=None,
+                   help="lateral: steady cycles answer the PD chosen over the family of models the measured point "
+                        "allows (uavsim.ident.family, about a second each; default on); the row answer_table scores "
+                        "the table's answer in every run")
     p.add_argument("--inputs", choices=["last", "mean", "each"], default=None,
                    help="what the network sees of each relay run: the last cycle (as in training), the mean of the "
                         "steady cycles, each steady cycle as its own input (default: the loop's, "
@@ -93,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
-                    combine=args.combine, second_beta=args.second_beta, bias_trim=args.bias_trim)
+                    combine=args.combine, second_beta=args.second_beta, bias_trim=args.bias_trim,
+                    family=args.family)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

@@ -7,7 +7,9 @@ measured point), ``gains`` (kp, kd, derivative_filter_hz for the identified K)
 and ``gains_source``: ``table`` (the grid's robust PD of the class at the control
 rate over the identified K, the real-time answer) or ``optimum`` (the fitted
 model's own optimum, with ``--optimum auto`` when the model is off the grid or
-``--optimum always``; its latency in ``gains_optimum``), plus ``oscillation`` and
+``--optimum always``; its latency in ``gains_optimum``) or ``family`` (lateral loops'
+steady cycles: the PD chosen over the models the measured point allows, ``family``
+with the member and its latency; ``--no-family`` keeps the table's), plus ``oscillation`` and
 ``run`` (``uavsim.ident``). ``--write-model`` stores the
 identified ``[model]`` in the session (``--force`` replaces an existing one).
 A lateral session closes over an attitude loop: ``--attitude-class N`` names
@@ -51,6 +53,10 @@ def register(subparsers) -> None:
                    help="back the table's PD off where the identified model with 5 degrees more lag needs it "
                         "(uavsim.ident.guard, about 1 ms; the answer's guard.scale); default: on for altitude and "
                         "attitude, off for lateral loops")
+    p.add_argument("--family", action=argparse.BooleanOptionalAction, default=None,
+                   help="lateral: on a steady cycle, answer the PD chosen over the family of models the measured "
+                        "point allows (uavsim.ident.family, about a second; the answer's family); default on for "
+                        "lateral loops")
     p.add_argument("--second-run", metavar="FILE",
                    help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "
                         "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint)")
@@ -67,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
                            optimum=args.optimum, decision=args.decision, guard=args.guard,
-                           second_run=args.second_run)
+                           second_run=args.second_run, family=args.family)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)

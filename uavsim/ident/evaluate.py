@@ -34,6 +34,9 @@ In the same run, on the same episodes (controls and alternatives):
 * ``answer_guarded``: the answer's table PD backed off by the phase-margin guard
   (``uavsim.ident.guard``: a factor in 0.5-1 only where the answer's fitted model with
   5 degrees more lag needs it), to be judged against that detuning;
+* ``answer_table``: the class's table PD (with the decision's own factor), unguarded: on
+  lateral loops what the answer was before the family answer (``uavsim.ident.family``)
+  replaced it on steady cycles;
 * the class decisions (``uavsim.ident.select``), each scored like the answer (refusals
   are failures): ``answer_bayes`` (least expected J under the network's softmax over
   the bundle's cost matrix, at the bundle's temperature) and ``answer_argmax`` (the most likely class), both with the
@@ -55,7 +58,8 @@ noise in output units) and the answer weighs its belief by both measured points
 
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
-``lateral/aNN`` closes it (the attitude table's PD at the control rate).
+``lateral/aNN`` closes it (the attitude table's PD at the control rate). Their
+steady cycles answer the family's PD (``family``; ``family=False``: the table's).
 
     from uavsim.ident.evaluate import EvalSpec, evaluate
     res = evaluate(EvalSpec(loop="altitude", n=300, seed=2), models="training/runs", recipe="datasets/altitude.toml")
@@ -124,6 +128,9 @@ class EvalSpec:
         the same sensor noise in output units), whose measured point weighs the belief
         (``uavsim.ident.twopoint``); None: one run, the paper's method
     bias_trim : the relays' bias trim (``uavsim.formats.session.RELAY_BIAS_TRIMS``); None: the recipe's
+    family : lateral: steady cycles answer the PD of the measured point's model family
+        (``uavsim.ident.family``); None: identification's default (on); the row ``answer_table``
+        scores the table's answer beside it
     """
 
     loop: str = "altitude"
@@ -140,6 +147,7 @@ class EvalSpec:
     combine: str | None = None
     second_beta: float | None = None
     bias_trim: str | None = None
+    family: bool | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -283,7 +291,7 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
 
 def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
                   guard: bool | None = None, inputs: str | None = None, combine: str | None = None,
-                  sim2: dict[str, Any] | None = None) -> dict[str, Any]:
+                  sim2: dict[str, Any] | None = None, family: bool | None = None) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones).
 
     ``sim2``: a second run of every episode at another ``beta``; where it holds a cycle, it weighs the
@@ -310,7 +318,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
                     f2 = None
             res["second"][i] = f2 is not None
             res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard,
-                                               combine=combine, second=f2)
+                                               combine=combine, second=f2, family=family)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             res["why"][i] = str(exc)
@@ -346,6 +354,7 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
     J["answer"] = np.full(n, _FAIL)
     J[f"answer_x{DETUNE:g}"] = np.full(n, _FAIL)
     J["answer_guarded"] = np.full(n, _FAIL)
+    J["answer_table"] = np.full(n, _FAIL)
     if gi.size:
         kp, kd, fhz = (col("gains", k) for k in ("kp", "kd", "derivative_filter_hz"))
         J["answer"][gi] = _score(fam, rate, truth, q_opt, gi, kp, kd, fhz)
@@ -360,6 +369,8 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
                                          kp=tkp[k], kd=tkd[k], derivative_filter_hz=tfhz[k])["scale"]
                             for k, i in enumerate(gi)])
         J["answer_guarded"][gi] = _score(fam, rate, truth, q_opt, gi, s_g * tkp, s_g * tkd, tfhz)
+        # the table's answer (the decision's own factor on it), where a family answer replaced it
+        J["answer_table"][gi] = _score(fam, rate, truth, q_opt, gi, tkp, tkd, tfhz)
     J["rule_on_truth"] = _score(fam, rate, truth, q_opt, np.arange(n), rule_gains["kp"], rule_gains["kd"],
                                 rule_gains["derivative_filter_hz"])
     # controls and alternatives need a measured cycle (refused episodes included where one exists)
@@ -483,7 +494,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2)
+        ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2,
+                            spec.family)
         refused = np.array([x is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,

@@ -16,7 +16,9 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    the fitted model's own optimum at the control rate is computed too (~10-20 ms,
    its latency in the answer) and answered when the fitted model is off the
    grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
-   or always (``optimum="always"``);
+   or always (``optimum="always"``). A lateral loop's steady cycle answers instead the PD
+   chosen over the family of models its measured point allows (``uavsim.ident.family``,
+   about a second; ``gains_source`` ``family``);
 4. the model: the class's lags with the gain and delay fitted to the measured
    point (``params``: what ``write_model`` stores and the gap workflow simulates).
 
@@ -34,7 +36,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,11 +48,12 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
+from uavsim.ident.family import family_applies, family_gains
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
 
-__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
+__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "DEFAULT_FAMILY", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
 #: when the fitted model's optimum is computed and answered (``identify_cycle``)
 OPTIMUM_MODES = ("never", "auto", "always")
@@ -58,6 +61,16 @@ OPTIMUM_MODES = ("never", "auto", "always")
 #: than this (s) and this fraction of the class's (a grid level of delay is ~40-60% apart)
 OFF_GRID_TAU = (0.002, 0.25)
 _GAIN_KEYS = ("kp", "kd", "derivative_filter_hz")
+#: loops whose steady cycles answer the PD of the measured point's model family (``uavsim.ident.family``)
+DEFAULT_FAMILY = {"lateral": True}
+
+
+def _default_family(loop: str, family: bool | None) -> bool:
+    if family is None:
+        return DEFAULT_FAMILY.get(loop, False)
+    if family and loop != "lateral":
+        raise UserError(f"the family answer is the lateral loop's, not the {loop} loop's")
+    return bool(family)
 
 
 def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
@@ -66,8 +79,8 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
                    attitude: dict[str, float] | None = None, decision: str | None = None,
-                   guard: bool | None = None, combine: str | None = None, second: CycleFeatures | None = None
-                   ) -> dict[str, Any]:
+                   guard: bool | None = None, combine: str | None = None, second: CycleFeatures | None = None,
+                   family: bool | None = None) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -97,6 +110,12 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     second : CycleFeatures or None
         A second relay run's cycle at another ``beta`` (``uavsim.ident.twopoint``): the belief is
         weighed by how well each class fits both measured points before the decision.
+    family : bool or None
+        Lateral only: on a steady cycle (``uavsim.ident.family.family_applies``) answer the PD
+        chosen over the family of models the measured point allows (``family_gains``; the
+        answer's ``family``: the member, its factor, ``latency_ms``) instead of the table's,
+        unless a fitted optimum is answered. None: the loop's default (``DEFAULT_FAMILY``:
+        on for lateral loops).
 
     Returns
     -------
@@ -161,6 +180,15 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                                     "ise": float(opt.ise[0]), "latency_ms": ms}
             ans["gains"] = {k: ans["gains_optimum"][k] for k in _GAIN_KEYS}
             ans["gains_source"] = "optimum"
+    if _default_family(bundle.loop, family) and ans["gains_source"] == "table" and family_applies(
+            f.response_spread, f.response_cycles):
+        t0 = time.perf_counter()
+        fam = family_gains(bundle, dec.p[0], f.response, f.response_period, spread=f.response_spread,
+                           attitude=attitude)
+        if fam is not None:
+            ans["family"] = {**asdict(fam), "latency_ms": 1e3 * (time.perf_counter() - t0)}
+            ans["gains"] = {"kp": fam.kp, "kd": fam.kd, "derivative_filter_hz": fam.derivative_filter_hz}
+            ans["gains_source"] = "family"
     gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), rule=bundle.rule,
                               rate_hz=bundle.input_rate_hz)
     ans["gains_measured_point"] = _floats(gm)
@@ -178,16 +206,18 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
                     beta: float | None = None, optimum: str = "never",
                     attitude: dict[str, float] | None = None, decision: str | None = None,
-                    guard: bool | None = None, second: CycleFeatures | None = None) -> dict[str, Any]:
+                    guard: bool | None = None, second: CycleFeatures | None = None,
+                    family: bool | None = None) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
     ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's);
-    ``second``: a second run's cycle (``second_cycle``), as ``identify_cycle`` takes it.
+    ``second``: a second run's cycle (``second_cycle``), as ``identify_cycle`` takes it; ``family``:
+    ``identify_cycle``'s.
     """
     f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
     return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision, guard=guard,
-                          second=second)
+                          second=second, family=family)
 
 
 def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float,
@@ -205,7 +235,7 @@ def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
                      optimum: str = "never", decision: str | None = None, guard: bool | None = None,
-                     second_run: str | None = None) -> dict[str, Any]:
+                     second_run: str | None = None, family: bool | None = None) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -222,7 +252,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         over (what identification of its roll or pitch session gave); picks ``lateral/aNN``.
     attitude : dict or None
         Lateral only: the flight's attitude loop when known (``identify_cycle``).
-    optimum, decision, guard : str, str, bool
+    optimum, decision, guard, family : str, str, bool, bool
         ``identify_cycle``'s.
     second_run : str or None
         File name of a second relay run of the session at another ``beta`` (``-0.3``:
@@ -274,7 +304,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     h, bias = float(r.spec.h), float(r.spec.bias or 0.0)
     ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim), rate_hz=s.control_rate_hz,
                           h=h, bias=bias, bundle=b, beta=r.spec.beta, optimum=optimum,
-                          attitude=attitude, decision=decision, guard=guard, second=second)
+                          attitude=attitude, decision=decision, guard=guard, second=second, family=family)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
     if second is not None:

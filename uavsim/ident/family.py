@@ -1,0 +1,226 @@
+"""The lateral PD chosen over the family of models the measured point allows.
+
+A lateral process over a known attitude loop has three unknowns: its gain ``K``, drag
+time constant ``T2`` and outer delay ``tau``. One relay cycle measures ``G(j w)`` at one
+frequency, two real numbers, so every ``T2`` fixes the ``K`` and ``tau`` that put the
+model on the measured point (``uavsim.ident.response.fit_response_lateral``): the models
+consistent with the measurement form a one-parameter **family**. The grid's classes sit
+on it only at their own ``T2``, and a class's table PD is the optimum of its nominal
+model, not of the family member that matches the flight; the lateral optima are fragile
+(gain margins 1.03-1.3), so the distance costs much.
+
+``family_gains`` answers instead the ISE-optimal PD at the control rate of one family
+member, times one of ``FAMILY_SCALES``:
+
+1. the family: ``T2`` on ``FAMILY_T2_POINTS`` log-spaced points of the box and every
+   class's own, each fitted to the point; members whose delay is not in ``(0, tau_max]``
+   of the box are no process the measurement allows;
+2. the belief on the family: the network's softmax at each class's own member
+   (``1 - FAMILY_FLAT`` of it), the rest spread flat over the members;
+3. the candidates: each member's own optimum (``uavsim.tuning.optimal``) times each factor;
+4. the measurement's own error: the family fitted again to the point moved by the
+   cycle's phase spread (at least ``FAMILY_PHASE_DEG``) both ways, and with the gain
+   raised by its log-gain spread, alone and with the more lagging phase;
+5. the answer: the largest factor whose candidates keep the largest share of all those
+   models stable (a smaller factor only where it keeps more), and among those candidates
+   the one of least belief-weighted ``log(ISE / best ISE)`` over the nominal family
+   (clipped like ``J``).
+
+Only a **steady cycle** is answered so (``family_applies``): at least
+``FAMILY_MIN_CYCLES`` response cycles, whose own responses spread less than
+``FAMILY_SPREAD_LIMITS``. Under 10-20 % noise the measured phase is off by several
+degrees even where the cycles agree (development seed 12: six answers of J 1.4-13
+or unstable at phase spreads of 1.7-2.9 degrees, where the table's answers were
+1.00-1.05); the limits were set on development seeds 11-12 as the widest that added no
+unstable answer and raised no p95 there. Elsewhere the class decision's table answer
+(``decide_stable``) stays.
+
+Cost: ``optimal_gains`` on 10-35 members and ``5 x members^2`` closed loops per factor
+tried, about a second on one thread (the answer's ``latency_ms``): off the table's
+real-time path, as the fitted optimum is.
+
+    from uavsim.ident.family import family_applies, family_gains
+    if family_applies(f.response_spread, f.response_cycles):
+        g = family_gains(bundle, p, f.response, f.response_period, spread=f.response_spread)
+        g["kp"], g["kd"], g["derivative_filter_hz"], g["T2"], g["tau"]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavsim.ident.bundle import ModelBundle
+from uavsim.learning.decision import COST_CLIP
+
+__all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
+           "FAMILY_MIN_CYCLES", "FamilyAnswer", "family_applies", "family_members", "family_gains"]
+
+#: log-spaced drag time constants of the box the family is taken at (beside every class's own)
+FAMILY_T2_POINTS = 12
+#: share of the belief spread flat over the family's members
+FAMILY_FLAT = 0.2
+#: factors on a member's optimum the answer may take, largest first
+FAMILY_SCALES = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5)
+#: least phase error (deg) the family is moved by, both ways
+FAMILY_PHASE_DEG = 2.0
+#: a cycle whose response cycles spread by more than (std of log |G|, std of phase in deg) keeps the table answer
+FAMILY_SPREAD_LIMITS = (0.1, 1.5)
+#: fewest response cycles a family answer is made from
+FAMILY_MIN_CYCLES = 3
+
+
+@dataclass(frozen=True)
+class FamilyAnswer:
+    """The family's PD and the member it is the optimum of.
+
+    Attributes
+    ----------
+    kp, kd : PD gains (command per output unit, command s per output unit)
+    derivative_filter_hz : the PD's derivative filter, Hz
+    scale : the factor on the member's optimum
+    K, T2_s, tau_s : the member (gain, drag time constant and outer delay, s)
+    members : models of the nominal family
+    stable_share : share of the nominal and moved models the answer keeps stable
+    expected_log_ratio : its belief-weighted ``log(ISE / best ISE)`` over the nominal family
+    """
+
+    kp: float
+    kd: float
+    derivative_filter_hz: float
+    scale: float
+    K: float
+    T2_s: float
+    tau_s: float
+    members: int
+    stable_share: float
+    expected_log_ratio: float
+
+
+def family_applies(spread, response_cycles: int, *, limits=FAMILY_SPREAD_LIMITS,
+                   min_cycles: int = FAMILY_MIN_CYCLES) -> bool:
+    """Whether a cycle is steady enough for the family answer: ``spread`` (std of log |G|, of the phase in rad)."""
+    sg, sp = (float(v) for v in spread)
+    return response_cycles >= min_cycles and sg < limits[0] and math.degrees(sp) < limits[1]
+
+
+def _attitude(bundle: ModelBundle, attitude: dict[str, float] | None) -> dict[str, float]:
+    att = dict(bundle.attitude or {})
+    att.update(attitude or {})
+    return att
+
+
+def family_members(bundle: ModelBundle, response: complex, response_period: float, *,
+                   attitude: dict[str, float] | None = None, gain_factor: float = 1.0) -> dict[str, np.ndarray]:
+    """The models (B,) the measured point allows: ``K``, ``T2``, ``tau`` (s) and the class each ``T2`` is (-1: none).
+
+    ``T2`` on ``FAMILY_T2_POINTS`` log-spaced points of the box and at every class's own; ``K`` and
+    ``tau`` fitted to the point (times ``gain_factor`` on ``K``); members with a delay outside
+    ``(0, tau_max]`` of the box left out.
+    """
+    from uavsim.ident.response import fit_response_lateral
+    from uavsim.lumped.params import RANGES
+
+    lo, hi = RANGES["lateral"]["T2"]
+    tau_max = RANGES["lateral"]["tau"][1]
+    cT2 = np.asarray(bundle.column("T2"), dtype=np.float64)
+    grid = np.geomspace(lo, hi, FAMILY_T2_POINTS)
+    grid = grid[~np.isclose(grid[:, None], cT2[None, :], rtol=1e-6).any(axis=1)]  # a class's own T2 is there already
+    T2 = np.concatenate([cT2, grid])
+    cls = np.concatenate([np.arange(cT2.size), np.full(grid.size, -1)])
+    n = T2.size
+    # the branch nearest the box's middle delay: the one in [0, tau_max] at lateral cycle frequencies
+    m = fit_response_lateral(np.full(n, complex(response)), np.full(n, float(response_period)), T2=T2,
+                             tau_class=np.full(n, 0.5 * tau_max), attitude=_attitude(bundle, attitude),
+                             rate_hz=bundle.input_rate_hz)
+    ok = np.isfinite(m["K"]) & (m["K"] > 0) & (m["tau"] > 0) & (m["tau"] <= tau_max)
+    return {"K": m["K"][ok] * gain_factor, "T2": T2[ok], "tau": m["tau"][ok], "cls": cls[ok]}
+
+
+def _loop_params(bundle: ModelBundle, members: dict[str, np.ndarray], att: dict[str, float]) -> dict:
+    """``lift`` / ``optimal_gains`` parameters of family members over the attitude loop ``att``."""
+    B = members["K"].size
+    p = {"K": members["K"], "T2": members["T2"], "tau": members["tau"]}
+    p.update({k: np.full(B, float(att[k])) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd")})
+    p["att_N"] = np.full(B, 2.0 * math.pi * float(att["att_filter_hz"]))
+    if att.get("rate_hz") is not None:
+        p["att_rate_hz"] = float(att["rate_hz"])
+    return p
+
+
+def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response_period: float, *,
+                 spread=(0.0, 0.0), attitude: dict[str, float] | None = None, scales=FAMILY_SCALES,
+                 phase_deg: float = FAMILY_PHASE_DEG, flat: float = FAMILY_FLAT) -> FamilyAnswer | None:
+    """The PD of the measured point's family (module docstring); None where no member holds a stable optimum.
+
+    Parameters
+    ----------
+    bundle : ModelBundle
+        A lateral bundle (its attitude loop, classes' ``T2``, rule and control rate).
+    p : (n,) float
+        The network's belief over the bundle's classes.
+    response, response_period : complex, float
+        The cycle's fundamental response (``CycleFeatures.response``) and its period, s.
+    spread : (float, float)
+        The cycle's ``response_spread`` (std of log |G|, std of the phase in rad).
+    attitude : dict or None
+        The flight's attitude loop where known better than the bundle's (``fitted_model``'s).
+    scales, phase_deg, flat
+        ``FAMILY_SCALES``, ``FAMILY_PHASE_DEG``, ``FAMILY_FLAT``.
+    """
+    from uavsim.lumped.sampled import lift, sampled_ise
+    from uavsim.tuning.optimal import optimal_gains
+
+    if bundle.loop != "lateral":
+        raise ValueError("the family answer is the lateral loop's")
+    att = _attitude(bundle, attitude)
+    nom = family_members(bundle, response, response_period, attitude=att)
+    B = nom["K"].size
+    if B == 0:
+        return None
+    w = np.full(B, flat / B)
+    p = np.asarray(p, dtype=np.float64).ravel()
+    on = nom["cls"] >= 0
+    w[on] += (1.0 - flat) * p[nom["cls"][on]]
+    w /= w.sum()
+    pn = _loop_params(bundle, nom, att)
+    with np.errstate(all="ignore"):
+        opt = optimal_gains(bundle.loop, bundle.rate_hz, rule=bundle.rule, **pn)
+    good = np.isfinite(opt.ise) & (opt.ise > 0) & np.isfinite(opt.kp) & (opt.kp > 0)
+    if not good.any():
+        return None
+    # the measurement's own error: the point moved by its phase spread and its gain raised by its gain spread
+    d = math.radians(max(phase_deg, math.degrees(float(spread[1]))))
+    kg = math.exp(min(float(spread[0]), 1.0))
+    moved = [family_members(bundle, complex(response) * np.exp(1j * dph), response_period, attitude=att,
+                            gain_factor=gf) for dph, gf in ((-d, 1.0), (d, 1.0), (0.0, kg), (-d, kg))]
+    allm = [pn] + [_loop_params(bundle, m, att) for m in moved if m["K"].size]
+    every = {k: (np.concatenate([q[k] for q in allm]) if isinstance(v, np.ndarray) else v) for k, v in pn.items()}
+    M = every["K"].size
+    gi = np.flatnonzero(good)
+    ci, mi = np.repeat(np.arange(gi.size), M), np.tile(np.arange(M), gi.size)
+    with np.errstate(all="ignore"):
+        proc = lift(bundle.loop, bundle.rate_hz, **every).take(mi)
+    best = (-1.0, np.inf, 0, 1.0)  # (stable share, cost, member, factor)
+    for f in scales:  # largest factor first: a smaller one answers only where it holds more of the models
+        with np.errstate(all="ignore"):
+            q = sampled_ise(proc, f * opt.kp[gi][ci], f * opt.kd[gi][ci],
+                            2.0 * math.pi * opt.derivative_filter_hz[gi][ci]).reshape(gi.size, M)
+        stable = np.isfinite(q) & (q > 0)
+        share = stable.mean(axis=1)
+        # the nominal members without an optimum of their own weigh nothing on the cost
+        ratio = np.where(stable[:, :B], q[:, :B], np.inf) / np.where(good, opt.ise, np.inf)[None, :]
+        cost = np.log(np.clip(np.where(good[None, :], ratio, 1.0), *COST_CLIP)) @ w
+        keep = np.flatnonzero(share >= share.max() - 1e-9)
+        k = int(keep[np.argmin(cost[keep])])
+        if share[k] > best[0] + 1e-9:
+            best = (float(share[k]), float(cost[k]), int(gi[k]), float(f))
+        if best[0] >= 1.0 - 1e-9:  # every model held: no smaller factor can do better
+            break
+    share, cost, j, f = best
+    return FamilyAnswer(kp=f * float(opt.kp[j]), kd=f * float(opt.kd[j]),
+                        derivative_filter_hz=float(opt.derivative_filter_hz[j]), scale=f, K=float(nom["K"][j]),
+                        T2_s=float(nom["T2"][j]), tau_s=float(nom["tau"][j]), members=int(B), stable_share=share,
+                        expected_log_ratio=cost)
