@@ -191,14 +191,18 @@ def lateral_grid_bundle(a: int):
     return sub, b, att
 
 
-def lateral_class_truths(sub, b, att):
-    """The sub-grid's classes as true processes (K = 1), their optima and exact responses at their MRFT points."""
+def lateral_class_truths(sub, b, att, *, K: float = 1.0, T2_factor: float = 1.0, tau_factor: float = 1.0,
+                         tau_add_s: float = 0.0):
+    """The sub-grid's classes as true processes (gain ``K``; ``T2`` times ``T2_factor`` within the box, the outer
+    delay times ``tau_factor`` plus ``tau_add_s``), their optima and exact responses at the classes' MRFT points."""
     from uavsim.lumped.lateral import lateral_response_sampled
+    from uavsim.lumped.params import RANGES
     from uavsim.tuning.optimal import optimal_gains
 
     n = sub.n
-    truth = {"K": np.ones(n), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
-             "tau": b.classes["tau"], "T2": b.classes["T2"], "tau_in": np.full(n, att["tau_in"]),
+    truth = {"K": np.full(n, float(K)), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
+             "tau": b.classes["tau"] * tau_factor + tau_add_s,
+             "T2": np.clip(b.classes["T2"] * T2_factor, *RANGES["lateral"]["T2"]), "tau_in": np.full(n, att["tau_in"]),
              "att_kp": np.full(n, att["att_kp"]), "att_kd": np.full(n, att["att_kd"]),
              "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]), "att_rate_hz": np.full(n, 200.0)}
     q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise

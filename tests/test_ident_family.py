@@ -11,27 +11,13 @@ import math
 
 import numpy as np
 import pytest
-from _learning_fixtures import lateral_grid_bundle
+from _learning_fixtures import lateral_class_truths, lateral_grid_bundle
 
 A = 11  # the sub-grid test_ident_stable judges the stable decision on
 
 
 def _off_grid(sub, b, att):
-    from uavsim.lumped.lateral import lateral_response_sampled
-    from uavsim.tuning.optimal import optimal_gains
-
-    n = sub.n
-    truth = {"K": np.full(n, 1.2), "T_prop": np.full(n, att["T_prop"]), "T1": np.full(n, att["T1"]),
-             "tau": b.classes["tau"] * 0.6 + 0.002, "T2": np.clip(b.classes["T2"] * 1.35, 0.2, 6.0),
-             "tau_in": np.full(n, att["tau_in"]), "att_kp": np.full(n, att["att_kp"]),
-             "att_kd": np.full(n, att["att_kd"]), "att_N": np.full(n, 2 * math.pi * att["att_filter_hz"]),
-             "att_rate_hz": np.full(n, 200.0)}
-    q_opt = optimal_gains("lateral", 200.0, rule=b.rule, **truth).ise
-    w = np.asarray(sub.omega, float)
-    G = np.array([lateral_response_sampled(np.array([w[t]]), 200.0, **{k: float(v[t]) for k, v in truth.items()
-                                                                       if k != "att_rate_hz"})[0][0]
-                  for t in range(n)])
-    return truth, q_opt, w, G
+    return lateral_class_truths(sub, b, att, K=1.2, T2_factor=1.35, tau_factor=0.6, tau_add_s=0.002)
 
 
 def test_family_members_sit_on_the_measured_point():
