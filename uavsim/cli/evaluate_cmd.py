@@ -49,7 +49,7 @@ def register(subparsers) -> None:
                         "every run")
     p.add_argument("--family", action=argparse.BooleanOptionalAction, default=None,
                    help="lateral: steady cycles answer the PD chosen over the family of models the measured point "
-                        "allows (uavsim.ident.family, about a second each; default on); the row answer_table scores "
+                        "allows (uavsim.ident.family, under a second each; default on); the row answer_table scores "
                         "the table's answer in every run")
     p.add_argument("--inputs", choices=["last", "mean", "each"], default=None,
                    help="what the network sees of each relay run: the last cycle (as in training), the mean of the "

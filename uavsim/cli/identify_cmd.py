@@ -55,7 +55,7 @@ def register(subparsers) -> None:
                         "attitude, off for lateral loops")
     p.add_argument("--family", action=argparse.BooleanOptionalAction, default=None,
                    help="lateral: on a steady cycle, answer the PD chosen over the family of models the measured "
-                        "point allows (uavsim.ident.family, about a second; the answer's family); default on for "
+                        "point allows (uavsim.ident.family, under a second; the answer's family); default on for "
                         "lateral loops")
     p.add_argument("--second-run", metavar="FILE",
                    help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "

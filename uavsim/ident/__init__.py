@@ -11,6 +11,8 @@ Downstream of ``uavsim.data`` (the shared preprocessing) and ``uavsim.learning``
 - ``select``: the class: least expected log J under the network's softmax over the bundle's
   cost matrix (or the most likely class, ``decision="argmax"``).
 - ``gains``: the table's PD for the identified gain; the fitted model's optimum.
+- ``family``: lateral loops' steady cycles: the PD chosen over the family of models the
+  measured point allows.
 - ``session``: the session-level API (``identify_session``, ``write_model``).
 - ``evaluate``: off-grid evaluation against each process's optimum (``uavsim evaluate``).
 

@@ -36,13 +36,14 @@ unstable answer and raised no p95 there. Elsewhere the class decision's table an
 (``decide_stable``) stays.
 
 Cost: ``optimal_gains`` on 10-35 members and ``5 x members^2`` closed loops per factor
-tried, about a second on one thread (the answer's ``latency_ms``): off the table's
-real-time path, as the fitted optimum is.
+tried: whole identifications of 71-88 ms median and 0.46-0.66 s p95 on one thread of the
+2-core development machine (``uavsim evaluate``'s clock; the answer's ``latency_ms``), off
+the table's real-time path, as the fitted optimum is.
 
     from uavsim.ident.family import family_applies, family_gains
     if family_applies(f.response_spread, f.response_cycles):
         g = family_gains(bundle, p, f.response, f.response_period, spread=f.response_spread)
-        g["kp"], g["kd"], g["derivative_filter_hz"], g["T2"], g["tau"]
+        g.kp, g.kd, g.derivative_filter_hz, g.scale, g.T2_s, g.tau_s     # FamilyAnswer (None: no member)
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
    or always (``optimum="always"``). A lateral loop's steady cycle answers instead the PD
    chosen over the family of models its measured point allows (``uavsim.ident.family``,
-   about a second; ``gains_source`` ``family``);
+   under a second; ``gains_source`` ``family``);
 4. the model: the class's lags with the gain and delay fitted to the measured
    point (``params``: what ``write_model`` stores and the gap workflow simulates).
 
