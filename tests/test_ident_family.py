@@ -91,7 +91,8 @@ def test_identify_cycle_answers_the_family_on_lateral_loops_only():
     ``family=False`` or a spread cycle; asking it of an inner loop is a one-line error."""
     from uavsim.data.preprocess import CycleFeatures
     from uavsim.errors import UserError
-    from uavsim.ident.session import _default_family, identify_cycle
+    from uavsim.ident.family import default_family
+    from uavsim.ident.session import identify_cycle
 
     sub, b, att = lateral_grid_bundle(A)
     _, _, w, G = _off_grid(sub, b, att)
@@ -105,6 +106,6 @@ def test_identify_cycle_answers_the_family_on_lateral_loops_only():
     assert identify_cycle(steady, b, family=False)["gains_source"] == "table"
     spread = CycleFeatures(**kw, response_spread=(0.3, 0.0))
     assert identify_cycle(spread, b)["gains_source"] == "table"
-    assert _default_family("altitude", None) is False
+    assert default_family("altitude", None) is False
     with pytest.raises(UserError, match="lateral loop's"):
-        _default_family("attitude", True)
+        default_family("attitude", True)

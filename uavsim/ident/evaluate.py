@@ -81,6 +81,7 @@ from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle, phase_lead
+from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
@@ -474,6 +475,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         raise UserError(f"{recipe}: settings = {rc.test.settings!r}; the evaluation runs the relay with a user's "
                         "settings (settings = \"recommended\"), never ones made from the true cycle")
     lateral = spec.loop == "lateral"
+    default_family(spec.loop, spec.family)  # asked of an inner loop: the one-line error before any flight
     if (rc.loop == "lateral") != lateral or (not lateral and rc.loop != spec.loop):
         raise UserError(f"{recipe}: a {rc.loop} recipe, the evaluation is of {spec.loop}")
     groups = _lateral_groups(spec, models) if lateral else [(None, resolve_model_dir(spec.loop, models))]

@@ -53,11 +53,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.gains import lateral_model, model_loop_params
 from uavsim.learning.decision import COST_CLIP
 
 __all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
-           "FAMILY_MIN_CYCLES", "FamilyAnswer", "family_applies", "family_members", "family_gains"]
+           "FAMILY_MIN_CYCLES", "DEFAULT_FAMILY", "FamilyAnswer", "default_family", "family_applies", "family_members",
+           "family_gains"]
 
 #: log-spaced drag time constants of the box the family is taken at (beside every class's own)
 FAMILY_T2_POINTS = 12
@@ -71,6 +74,8 @@ FAMILY_PHASE_DEG = 2.0
 FAMILY_SPREAD_LIMITS = (0.1, 1.5)
 #: fewest response cycles a family answer is made from
 FAMILY_MIN_CYCLES = 3
+#: loops whose steady cycles answer the family's PD where identification is not told otherwise
+DEFAULT_FAMILY = {"lateral": True}
 
 
 @dataclass(frozen=True)
@@ -100,6 +105,16 @@ class FamilyAnswer:
     expected_log_ratio: float
 
 
+def default_family(loop: str, family: bool | None) -> bool:
+    """Whether ``loop`` answers the family's PD: ``family``, or None for ``DEFAULT_FAMILY``; a one-line error
+    where it is asked of an inner loop."""
+    if family is None:
+        return DEFAULT_FAMILY.get(loop, False)
+    if family and loop != "lateral":
+        raise UserError(f"the family answer is the lateral loop's, not the {loop} loop's")
+    return bool(family)
+
+
 def family_applies(spread, response_cycles: int, *, limits=FAMILY_SPREAD_LIMITS,
                    min_cycles: int = FAMILY_MIN_CYCLES) -> bool:
     """Whether a cycle is steady enough for the family answer: ``spread`` (std of log |G|, of the phase in rad)."""
@@ -107,21 +122,15 @@ def family_applies(spread, response_cycles: int, *, limits=FAMILY_SPREAD_LIMITS,
     return response_cycles >= min_cycles and sg < limits[0] and math.degrees(sp) < limits[1]
 
 
-def _attitude(bundle: ModelBundle, attitude: dict[str, float] | None) -> dict[str, float]:
-    att = dict(bundle.attitude or {})
-    att.update(attitude or {})
-    return att
-
-
 def family_members(bundle: ModelBundle, response: complex, response_period: float, *,
                    attitude: dict[str, float] | None = None, gain_factor: float = 1.0) -> dict[str, np.ndarray]:
-    """The models (B,) the measured point allows: ``K``, ``T2``, ``tau`` (s) and the class each ``T2`` is (-1: none).
+    """The models (B,) the measured point allows, as ``fitted_model`` gives them (``K``, ``T2``, ``tau``, the
+    attitude loop's keys), and ``cls``: the class whose ``T2`` each member has (-1: none).
 
     ``T2`` on ``FAMILY_T2_POINTS`` log-spaced points of the box and at every class's own; ``K`` and
     ``tau`` fitted to the point (times ``gain_factor`` on ``K``); members with a delay outside
     ``(0, tau_max]`` of the box left out.
     """
-    from uavsim.ident.response import fit_response_lateral
     from uavsim.lumped.params import RANGES
 
     lo, hi = RANGES["lateral"]["T2"]
@@ -130,25 +139,14 @@ def family_members(bundle: ModelBundle, response: complex, response_period: floa
     grid = np.geomspace(lo, hi, FAMILY_T2_POINTS)
     grid = grid[~np.isclose(grid[:, None], cT2[None, :], rtol=1e-6).any(axis=1)]  # a class's own T2 is there already
     T2 = np.concatenate([cT2, grid])
-    cls = np.concatenate([np.arange(cT2.size), np.full(grid.size, -1)])
     n = T2.size
     # the branch nearest the box's middle delay: the one in [0, tau_max] at lateral cycle frequencies
-    m = fit_response_lateral(np.full(n, complex(response)), np.full(n, float(response_period)), T2=T2,
-                             tau_class=np.full(n, 0.5 * tau_max), attitude=_attitude(bundle, attitude),
-                             rate_hz=bundle.input_rate_hz)
+    m = lateral_model(bundle, np.full(n, complex(response)), np.full(n, float(response_period)), T2=T2,
+                      tau_class=np.full(n, 0.5 * tau_max), attitude=attitude)
+    m["cls"] = np.concatenate([np.arange(cT2.size), np.full(grid.size, -1)])
+    m["K"] = m["K"] * gain_factor
     ok = np.isfinite(m["K"]) & (m["K"] > 0) & (m["tau"] > 0) & (m["tau"] <= tau_max)
-    return {"K": m["K"][ok] * gain_factor, "T2": T2[ok], "tau": m["tau"][ok], "cls": cls[ok]}
-
-
-def _loop_params(bundle: ModelBundle, members: dict[str, np.ndarray], att: dict[str, float]) -> dict:
-    """``lift`` / ``optimal_gains`` parameters of family members over the attitude loop ``att``."""
-    B = members["K"].size
-    p = {"K": members["K"], "T2": members["T2"], "tau": members["tau"]}
-    p.update({k: np.full(B, float(att[k])) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd")})
-    p["att_N"] = np.full(B, 2.0 * math.pi * float(att["att_filter_hz"]))
-    if att.get("rate_hz") is not None:
-        p["att_rate_hz"] = float(att["rate_hz"])
-    return p
+    return {k: v[ok] for k, v in m.items()}
 
 
 def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response_period: float, *,
@@ -176,8 +174,7 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
 
     if bundle.loop != "lateral":
         raise ValueError("the family answer is the lateral loop's")
-    att = _attitude(bundle, attitude)
-    nom = family_members(bundle, response, response_period, attitude=att)
+    nom = family_members(bundle, response, response_period, attitude=attitude)
     B = nom["K"].size
     if B == 0:
         return None
@@ -186,7 +183,7 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     on = nom["cls"] >= 0
     w[on] += (1.0 - flat) * p[nom["cls"][on]]
     w /= w.sum()
-    pn = _loop_params(bundle, nom, att)
+    pn = model_loop_params(bundle, nom)
     with np.errstate(all="ignore"):
         opt = optimal_gains(bundle.loop, bundle.rate_hz, rule=bundle.rule, **pn)
     good = np.isfinite(opt.ise) & (opt.ise > 0) & np.isfinite(opt.kp) & (opt.kp > 0)
@@ -195,9 +192,9 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     # the measurement's own error: the point moved by its phase spread and its gain raised by its gain spread
     d = math.radians(max(phase_deg, math.degrees(float(spread[1]))))
     kg = math.exp(min(float(spread[0]), 1.0))
-    moved = [family_members(bundle, complex(response) * np.exp(1j * dph), response_period, attitude=att,
+    moved = [family_members(bundle, complex(response) * np.exp(1j * dph), response_period, attitude=attitude,
                             gain_factor=gf) for dph, gf in ((-d, 1.0), (d, 1.0), (0.0, kg), (-d, kg))]
-    allm = [pn] + [_loop_params(bundle, m, att) for m in moved if m["K"].size]
+    allm = [pn] + [model_loop_params(bundle, m) for m in moved if m["K"].size]
     every = {k: (np.concatenate([q[k] for q in allm]) if isinstance(v, np.ndarray) else v) for k, v in pn.items()}
     M = every["K"].size
     gi = np.flatnonzero(good)

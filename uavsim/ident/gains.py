@@ -32,7 +32,7 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.ident.response import fit_response, fit_response_lateral
 from uavsim.tuning.rule import TuningRule
 
-__all__ = ["gain_estimate", "table_gains", "fitted_model", "model_optimum", "measured_point_gains"]
+__all__ = ["gain_estimate", "table_gains", "fitted_model", "lateral_model", "model_optimum", "measured_point_gains"]
 
 
 def gain_estimate(bundle: ModelBundle, cls, G) -> np.ndarray:
@@ -70,18 +70,27 @@ def fitted_model(bundle: ModelBundle, cls, response, response_period, *,
     cls = np.asarray(cls, dtype=np.int64)
     c = bundle.column
     if bundle.loop == "lateral":
-        att = dict(bundle.attitude or {})
-        att.update(attitude or {})
-        m = fit_response_lateral(response, response_period, T2=c("T2")[cls], tau_class=c("tau")[cls], attitude=att,
-                                 rate_hz=bundle.input_rate_hz)
-        shape = np.shape(m["K"])
-        m.update({k: np.full(shape, float(att[k])) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd",
-                                                             "att_filter_hz")})
-        if att.get("rate_hz") is not None:  # the attitude PD flown at the control rate
-            m["att_rate_hz"] = np.full(shape, float(att["rate_hz"]))
-        return m
+        return lateral_model(bundle, response, response_period, T2=c("T2")[cls], tau_class=c("tau")[cls],
+                             attitude=attitude)
     return fit_response(response, response_period, T_prop=c("T_prop")[cls], T1=c("T1")[cls], tau_class=c("tau")[cls],
                         rate_hz=bundle.input_rate_hz)
+
+
+def lateral_model(bundle: ModelBundle, response, response_period, *, T2, tau_class,
+                  attitude: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """Lateral models of drag time constants ``T2`` with the gain and delay that put them on the measured
+    response (``fit_response_lateral``, the delay's branch nearest ``tau_class``), over the bundle's
+    attitude loop or ``attitude`` where given: ``fitted_model``'s lateral keys, (m,) arrays."""
+    att = dict(bundle.attitude or {})
+    att.update(attitude or {})
+    m = fit_response_lateral(response, response_period, T2=T2, tau_class=tau_class, attitude=att,
+                             rate_hz=bundle.input_rate_hz)
+    shape = np.shape(m["K"])
+    m.update({k: np.full(shape, float(att[k])) for k in ("T_prop", "T1", "tau_in", "att_kp", "att_kd",
+                                                         "att_filter_hz")})
+    if att.get("rate_hz") is not None:  # the attitude PD flown at the control rate
+        m["att_rate_hz"] = np.full(shape, float(att["rate_hz"]))
+    return m
 
 
 def model_loop_params(bundle: ModelBundle, model: dict[str, np.ndarray]) -> dict:

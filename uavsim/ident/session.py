@@ -48,12 +48,12 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
-from uavsim.ident.family import family_applies, family_gains
+from uavsim.ident.family import default_family, family_applies, family_gains
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
 
-__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "DEFAULT_FAMILY", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
+__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
 #: when the fitted model's optimum is computed and answered (``identify_cycle``)
 OPTIMUM_MODES = ("never", "auto", "always")
@@ -61,16 +61,6 @@ OPTIMUM_MODES = ("never", "auto", "always")
 #: than this (s) and this fraction of the class's (a grid level of delay is ~40-60% apart)
 OFF_GRID_TAU = (0.002, 0.25)
 _GAIN_KEYS = ("kp", "kd", "derivative_filter_hz")
-#: loops whose steady cycles answer the PD of the measured point's model family (``uavsim.ident.family``)
-DEFAULT_FAMILY = {"lateral": True}
-
-
-def _default_family(loop: str, family: bool | None) -> bool:
-    if family is None:
-        return DEFAULT_FAMILY.get(loop, False)
-    if family and loop != "lateral":
-        raise UserError(f"the family answer is the lateral loop's, not the {loop} loop's")
-    return bool(family)
 
 
 def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
@@ -114,7 +104,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         Lateral only: on a steady cycle (``uavsim.ident.family.family_applies``) answer the PD
         chosen over the family of models the measured point allows (``family_gains``; the
         answer's ``family``: the member, its factor, ``latency_ms``) instead of the table's,
-        unless a fitted optimum is answered. None: the loop's default (``DEFAULT_FAMILY``:
+        unless a fitted optimum is answered. None: the loop's default (``uavsim.ident.family.DEFAULT_FAMILY``:
         on for lateral loops).
 
     Returns
@@ -180,7 +170,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                                     "ise": float(opt.ise[0]), "latency_ms": ms}
             ans["gains"] = {k: ans["gains_optimum"][k] for k in _GAIN_KEYS}
             ans["gains_source"] = "optimum"
-    if _default_family(bundle.loop, family) and ans["gains_source"] == "table" and family_applies(
+    if default_family(bundle.loop, family) and ans["gains_source"] == "table" and family_applies(
             f.response_spread, f.response_cycles):
         t0 = time.perf_counter()
         fam = family_gains(bundle, dec.p[0], f.response, f.response_period, spread=f.response_spread,
