@@ -135,3 +135,27 @@ def test_cli_second_run(three_model, tmp_path):  # noqa: F811 (fixture)
     assert 1 <= out["second_run"]["two_points"] <= answered
     bad = subprocess.run(cmd + ["--second-beta", "1.5"], capture_output=True, text=True, cwd=ROOT, env=env)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_cycles_set_the_relay_runs_length(three_model, monkeypatch, tmp_path):  # noqa: F811 (fixture)
+    """``--cycles`` flies every relay run that many cycles of its chunk's slowest class instead of the
+    recipe's ``[episodes] cycles``; fewer than 3 is a one-line error before any flight."""
+    import uavsim.ident.evaluate as ev
+
+    _, model, _ = three_model
+    seen = []
+    real = ev._simulate
+
+    def spy(params, recipe, *a, **kw):
+        seen.append((recipe.episodes.cycles, recipe.episodes.duration_s))
+        return real(params, recipe, *a, **kw)
+
+    monkeypatch.setattr(ev, "_simulate", spy)
+    res = ev.evaluate(ev.EvalSpec(loop="altitude", n=2, seed=5, cycles=9), models=model,
+                      recipe=ROOT / "datasets" / "small.toml", log=lambda m: None)
+    assert seen == [(9.0, None)] and res["spec"]["cycles"] == 9
+    cmd = [sys.executable, "-m", "uavsim.cli.main", "evaluate", "--loop", "altitude", "--models", str(model),
+           "--recipe", str(ROOT / "datasets" / "small.toml"), "--n", "2", "--cycles", "2"]
+    bad = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert "3" in bad.stderr

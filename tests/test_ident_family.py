@@ -84,6 +84,33 @@ def test_family_answers_only_steady_cycles():
     assert not family_applies((1.5 * sg, 0.0), 4)
     assert not family_applies((0.0, math.radians(1.5 * sp_deg)), 4)
     assert family_applies((0.5 * sg, math.radians(0.5 * sp_deg)), 4)
+    # a longer run: the same spread measures its mean point better
+    assert family_applies((1.5 * sg, math.radians(1.5 * sp_deg)), 12)
+    assert not family_applies((1.5 * sg, math.radians(1.5 * sp_deg)), 5)
+
+
+def test_point_spread_is_a_95_percent_interval_at_any_cycle_count():
+    """``point_spread`` scales a spread of m cycles to the reference's: the reference's 95 % half-width
+    ``t(0.975, 3) s' / sqrt(3)`` of the scaled spread ``s'`` covers the error of the m cycles' mean
+    95 % of the time for every m (Monte Carlo, normal per-cycle errors, the spread with ``ddof=0``
+    as ``CycleFeatures.response_spread``); unchanged at the reference."""
+    from scipy.stats import t
+
+    from uavsim.ident.family import FAMILY_REFERENCE_CYCLES, point_spread
+
+    r = FAMILY_REFERENCE_CYCLES
+    assert point_spread((0.03, 0.02), r) == (0.03, 0.02)
+    rng = np.random.default_rng(3)
+    tr = t.ppf(0.975, r - 1) / math.sqrt(r - 1)
+    for m in (3, 4, 8, 12):
+        x = rng.standard_normal((20000, m)) * 0.05
+        hw = tr * point_spread((1.0, 1.0), m)[0] * x.std(axis=1)  # the scaling is linear in the spread
+        cover = np.mean(np.abs(x.mean(axis=1)) < hw)
+        assert 0.94 < cover < 0.96, (m, cover)
+    # the plain standard-error scaling (no t) would not: at 12 cycles it covers more
+    x = rng.standard_normal((20000, 12)) * 0.05
+    se = tr * x.std(axis=1) * math.sqrt((r - 1) / 11)
+    assert np.mean(np.abs(x.mean(axis=1)) < se) > 0.98
 
 
 def test_identify_cycle_answers_the_family_on_lateral_loops_only():

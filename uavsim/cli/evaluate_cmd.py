@@ -63,6 +63,9 @@ def register(subparsers) -> None:
     p.add_argument("--bias-trim", choices=["off", "duty"], default=None,
                    help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
                         "network's dataset recipe's [test] bias_trim")
+    p.add_argument("--cycles", type=int, default=None,
+                   help="relay cycles each run flies, the first a transient (default: 13 on lateral loops, which "
+                        "average their point over up to 12; else the recipe's [episodes] cycles, the training sets' 5)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")
@@ -98,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
                     combine=args.combine, second_beta=args.second_beta, bias_trim=args.bias_trim,
-                    family=args.family)
+                    family=args.family, cycles=args.cycles)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

@@ -259,8 +259,9 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int, *,
     meta : dict of per-episode draws (``K, bias, noise_kind, noise_level, y0, tau_obs, a_n``,
     (n,) arrays), ``noise_kinds``, ``diverged`` (n,), ``seed``, ``duration_s``, ``response``
     (n,) complex and ``response_period`` (n,) s (the fundamental response), ``harmonics_y``,
-    ``harmonics_u`` (n, HARMONICS) complex (``preprocess.CycleFeatures``), and ``y``, ``u`` (n, T)
-    when the recipe keeps raw traces.
+    ``harmonics_u`` (n, HARMONICS) complex (``preprocess.CycleFeatures``), ``run_start_s`` (the
+    time the episode proper starts, after the refinement stages), and ``y``, ``u`` (n, T) when the
+    recipe keeps raw traces (from the first stage on).
     """
     if not params:
         raise UserError("simulate_features needs at least one process")
@@ -308,7 +309,7 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int, *,
     res = run_episodes(list(params), plan, ids, duration, int(plan.sim_seeds[0]))
     meta = {"K": K, "bias": bias, "noise_kind": kind, "noise_kinds": list(recipe.noise.kinds), "noise_level": level,
             "y0": y0, "tau_obs": res["tau_obs"], "a_n": res["a_n"], "diverged": res["diverged"], "seed": seed,
-            "duration_s": duration, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
+            "duration_s": duration, "run_start_s": stages * stage, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
             "response": res["response"], "response_period": res["response_period"],
             "harmonics_y": res["harmonics_y"], "harmonics_u": res["harmonics_u"]}
     if "y" in res:

@@ -17,7 +17,7 @@ saw and computed them, bias included):
 The period (mean over the cycles used) and the amplitude (half peak-to-peak of
 ``y``) are returned alongside, and the loop's **fundamental response**: the
 ratio of the first harmonics of ``y`` and of the command, ``Y1 / (h U1)``, over
-the last ``RESPONSE_CYCLES`` steady cycles. For a linear process that ratio is
+the last ``RESPONSE_CYCLES`` steady cycles (``response_cycles``). For a linear process that ratio is
 its frequency response ``G(j w)`` at the cycle's frequency ``w`` whatever the
 relay did (bias, ``tau_obs``, ``a_n``, sampling), and zero-mean noise averages
 out of it; the input is shape only, and the gain comes back from the response
@@ -64,7 +64,7 @@ _MIN_DUTY, _MAX_DUTY = 0.05, 0.95
 STEADY_TOL = 0.25
 #: shortest usable cycle, samples at INPUT_RATE_HZ: fewer than 4 samples a half-cycle is chattering, not a shape
 MIN_CYCLE_SAMPLES = 8
-#: most cycles the fundamental response is averaged over (the last ones, the first is never used)
+#: most cycles the fundamental response is averaged over by default (the last ones, the first is never used)
 RESPONSE_CYCLES = 4
 #: what of a run the network input holds: the last cycles (training), the mean of the response cycles,
 #: each response cycle as its own input (``features``; identification's choice: ``uavsim.ident.cycle``)
@@ -227,7 +227,7 @@ def waveform_harmonics(x: np.ndarray, start: int, stop: int, period: float,
 
 def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float, L: int, *,
              cycles: int = 1, steady_tol: float | None = None, inputs: str = "last",
-             harmonics: bool = True) -> CycleFeatures:
+             harmonics: bool = True, response_cycles: int = RESPONSE_CYCLES) -> CycleFeatures:
     """Network input from one relay test.
 
     Parameters
@@ -257,6 +257,9 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
         one longer than ``L``, if any (the last cycle always fits).
     harmonics : bool
         Measure ``harmonics_y`` and ``harmonics_u`` (None without: identification does not use them).
+    response_cycles : int
+        Most steady cycles the fundamental response is averaged over, where the run has them
+        (``RESPONSE_CYCLES``; identification's per loop: ``uavsim.ident.cycle.IDENT_RESPONSE_CYCLES``).
 
     Raises
     ------
@@ -272,6 +275,8 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u))):
         raise NoOscillation("the traces contain NaN or inf")
     tol = STEADY_TOL if steady_tol is None else float(steady_tol)
+    if int(response_cycles) < 1:
+        raise UserError(f"response_cycles must be >= 1, got {response_cycles}")
     if inputs not in INPUTS or (inputs != "last" and cycles != 1):
         raise UserError(f"inputs must be one of {', '.join(INPUTS)} ('last' with cycles > 1), got {inputs!r}")
     scale = 1.0
@@ -314,7 +319,7 @@ def features(y: np.ndarray, u: np.ndarray, rate_hz: float, h: float, bias: float
     x = _layout(seg_y, seg_u, L)
     period = precise_period if precise_period is not None else n / cycles / INPUT_RATE_HZ
     # the fundamental response over the last steady cycles (never the first, transient one)
-    m = min(RESPONSE_CYCLES, len(edges) - 2)
+    m = min(int(response_cycles), len(edges) - 2)
     lens = np.diff(edges[-1 - m:])
     while m > cycles and abs(lens[0] - lens[-1]) > tol * max(lens[0], lens[-1]):
         m -= 1

@@ -16,9 +16,12 @@ never a guess):
   relay bias (or disturbance) the training cycles never had.
 
 When the run's last cycles are refused, the steady cycles before them are
-tried, up to ``MAX_CYCLES_DROPPED`` cycles back (a burst of noise can break the
-last cycle of a run whose earlier ones are fine); the answer's ``oscillation``
-``start``/``stop`` say which samples were used. When none of those cuts has two
+tried, up to ``MAX_CYCLES_DROPPED`` cycles back (``IDENT_CYCLES_DROPPED`` per loop: a
+burst of noise can break the last cycle of a run whose earlier ones are fine); the
+answer's ``oscillation`` ``start``/``stop`` say which samples were used. The fundamental
+response is averaged over up to ``IDENT_RESPONSE_CYCLES`` steady cycles of the loop's run
+where it has them (a longer lateral run measures its point better: its standard error
+falls with the root of the cycles, ``uavsim.ident.family``). When none of those cuts has two
 cycles of steady length (the preprocessing's 25 %: a noisy run whose relay switches
 unevenly), identification does not refuse outright: the cut whose last two cycles
 agree best is used, up to ``IDENT_STEADY_TOL`` apart, for the loops in
@@ -41,6 +44,7 @@ import numpy as np
 
 from uavsim.data.preprocess import (
     MIN_CYCLE_SAMPLES,
+    RESPONSE_CYCLES,
     STEADY_TOL,
     CycleFeatures,
     features,
@@ -49,7 +53,8 @@ from uavsim.data.preprocess import (
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 
-__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_STEADY_TOL",
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_CYCLES_DROPPED",
+           "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
            "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal", "duty_refusal"]
 
@@ -67,6 +72,13 @@ PHASE_LEAD_MAX_DEG = 70.0
 DUTY_LIMIT = 0.2
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
+#: the same per loop where a run has more cycles to go back over (a loop not named: ``MAX_CYCLES_DROPPED``);
+#: lateral runs of 13 cycles under 10-20 % noise (development seeds 11-12): 10 back refuse 1 and 12 of 480 where
+#: 3 back refuse 5 and 19
+IDENT_CYCLES_DROPPED: dict[str, int] = {"lateral": 10}
+#: most steady cycles each loop's fundamental response is averaged over, where the run has them
+#: (``uavsim.data.preprocess.features``' ``response_cycles``; a loop not named: ``RESPONSE_CYCLES``)
+IDENT_RESPONSE_CYCLES: dict[str, int] = {"lateral": 12}
 #: identification only: where no cut has two cycles within the preprocessing's steady tolerance, the cut whose
 #: two last cycles agree best is used if their lengths differ by at most this fraction of the longer
 #: (development seeds 11-12, lateral: every such answer stable, the spread back-off engaged on most)
@@ -179,12 +191,13 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     d = np.diff(edges) * (bundle.input_rate_hz / rate_hz)
     d = d[d >= MIN_CYCLE_SAMPLES]
     typical = float(np.median(d)) * rate_hz / bundle.input_rate_hz if d.size else 0.0
-    earliest = len(y) - (MAX_CYCLES_DROPPED + 0.5) * typical
+    earliest = len(y) - (IDENT_CYCLES_DROPPED.get(bundle.loop, MAX_CYCLES_DROPPED) + 0.5) * typical
+    rc = IDENT_RESPONSE_CYCLES.get(bundle.loop, RESPONSE_CYCLES)
     cuts = [len(y)] + [int(e) + 1 for e in edges[::-1][: max(len(edges) - bundle.cycles - 2, 0)] if e >= earliest]
 
     def checked(stop: int, tol: float | None) -> CycleFeatures:
         f = features(y[:stop], u[:stop], rate_hz, h, bias, bundle.input_length, cycles=bundle.cycles, steady_tol=tol,
-                     inputs=inputs, harmonics=False)
+                     inputs=inputs, harmonics=False, response_cycles=rc)
         why = (saturation_refusal(y[f.start : f.stop])
                or duty_refusal(pos[f.start : f.stop], bundle.bias_trim)
                or period_refusal(f.period, bundle.period_bounds())

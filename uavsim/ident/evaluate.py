@@ -13,7 +13,8 @@ bias (a hover-command error) and trim it where the recipe says (``[test] bias_tr
 ``--bias-trim``), as a user's relay does.
 
 Each episode is identified exactly as a session is (``extract_cycle`` then
-``identify_cycle`` on its raw traces). The figure is
+``identify_cycle`` on its raw traces), from the start of its final relay run: the
+refinement runs before it flew other settings, and a session holds each run on its own. The figure is
 
     J = ISE(answer) / ISE(optimal PD of the true process at the control rate)
 
@@ -59,7 +60,8 @@ noise in output units) and the answer weighs its belief by both measured points
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
 ``lateral/aNN`` closes it (the attitude table's PD at the control rate). Their
-steady cycles answer the family's PD (``family``; ``family=False``: the table's).
+relay runs fly ``RUN_CYCLES`` (13) cycles, and their steady cycles answer the family's
+PD (``family``; ``family=False``: the table's).
 
     from uavsim.ident.evaluate import EvalSpec, evaluate
     res = evaluate(EvalSpec(loop="altitude", n=300, seed=2), models="training/runs", recipe="datasets/altitude.toml")
@@ -80,7 +82,7 @@ from uavsim.control.relay import check_bias_trim, relay_command
 from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
-from uavsim.ident.cycle import extract_cycle, phase_lead
+from uavsim.ident.cycle import IDENT_RESPONSE_CYCLES, extract_cycle, phase_lead
 from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard
@@ -89,7 +91,7 @@ from uavsim.ident.session import identify_cycle, second_cycle
 from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
-__all__ = ["LEVELS", "DETUNE", "GOALS", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
+__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
            "markdown"]
 
 #: noise levels (noise amplitude / cycle amplitude); level 0 is noise-free
@@ -104,6 +106,10 @@ GOALS = {"inner": {"median": 1.03, "p95": 1.10, "max": 1.5, "unstable": 0, "refu
 _FAIL = np.inf
 #: the second run's simulation seeds: this plus the first run's
 SECOND_SEED_OFFSET = 10_000_000
+#: relay cycles a loop's identification run flies where not told (``EvalSpec.cycles``; a loop not named: the
+#: recipe's ``[episodes] cycles``, the training sets' 5): a lateral run of 13 measures its point over up to 12
+#: steady cycles (development seeds 11-12: refusals 9 and 17 of 480 -> 3 and 14, p95 1.694 / 1.881 -> 1.355 / 1.559)
+RUN_CYCLES: dict[str, int] = {"lateral": 13}
 
 
 @dataclass(frozen=True)
@@ -132,6 +138,10 @@ class EvalSpec:
     family : lateral: steady cycles answer the PD of the measured point's model family
         (``uavsim.ident.family``); None: identification's default (on); the row ``answer_table``
         scores the table's answer beside it
+    cycles : relay cycles each run flies (the first is the transient); None: the loop's ``RUN_CYCLES``,
+        else the recipe's ``[episodes] cycles`` (the training sets' length). The run's length is a
+        user's choice: its point's standard error falls with the root of the steady cycles it
+        averages (``uavsim.ident.cycle.IDENT_RESPONSE_CYCLES``)
     """
 
     loop: str = "altitude"
@@ -149,6 +159,7 @@ class EvalSpec:
     second_beta: float | None = None
     bias_trim: str | None = None
     family: bool | None = None
+    cycles: int | None = None
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -216,7 +227,7 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
     w, _ = mrft_prediction_batch(fam, beta, 1.0, **{k: v for k, v in t.items()})
     order = np.argsort(-w, kind="stable")  # fastest first: a chunk's episode length follows its slowest
     out = {"y": [None] * n, "u": [None] * n, "bias": np.zeros(n), "diverged": np.zeros(n, bool),
-           "tau_obs": np.zeros(n), "a_n": np.zeros(n)}
+           "tau_obs": np.zeros(n), "a_n": np.zeros(n), "start": np.zeros(n, np.int64)}
     rec = replace(recipe, preprocess=replace(recipe.preprocess, keep_raw=True))
     t0 = time.perf_counter()
     for j, i0 in enumerate(range(0, n, chunk)):
@@ -229,6 +240,7 @@ def _simulate(params: list[LumpedParams], recipe, seed: int, noise: tuple[np.nda
             out["u"][i] = relay_command(m["u"][k].astype(np.float64), recipe.test.h, m["bias"][k], recipe.test.bias_trim)
         for key in ("bias", "diverged", "tau_obs", "a_n"):
             out[key][idx] = m[key]
+        out["start"][idx] = int(round(float(m["run_start_s"]) * recipe.episodes.rate_hz))
         log(f"simulated {min(i0 + chunk, n)}/{n} episodes ({time.perf_counter() - t0:.0f} s)")
     return out
 
@@ -298,7 +310,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     ``sim2``: a second run of every episode at another ``beta``; where it holds a cycle, it weighs the
     belief (``identify_cycle``'s ``second``), else the episode is identified from its first run alone.
     """
-    from uavsim.data.preprocess import features
+    from uavsim.data.preprocess import RESPONSE_CYCLES, features
 
     n = len(sim["y"])
     rate, h = recipe.episodes.rate_hz, recipe.test.h
@@ -307,13 +319,14 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
            "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan), "second": np.zeros(n, bool)}
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
+        y, u = _run(sim, i)
         try:
             t0 = time.perf_counter()
-            f = extract_cycle(sim["y"][i], sim["u"][i], bundle=bundle, inputs=inputs, **kw)
+            f = extract_cycle(y, u, bundle=bundle, inputs=inputs, **kw)
             f2 = None
             if sim2 is not None:
                 try:
-                    f2 = second_cycle(sim2["y"][i], sim2["u"][i], rate_hz=rate, h=h, bias=float(sim2["bias"][i]),
+                    f2 = second_cycle(*_run(sim2, i), rate_hz=rate, h=h, bias=float(sim2["bias"][i]),
                                       cycles=bundle.cycles)
                 except NoOscillation:
                     f2 = None
@@ -324,7 +337,8 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
         except NoOscillation as exc:
             res["why"][i] = str(exc)
             try:
-                f = features(sim["y"][i], sim["u"][i], rate, h, kw["bias"], bundle.input_length, cycles=bundle.cycles)
+                f = features(y, u, rate, h, kw["bias"], bundle.input_length, cycles=bundle.cycles,
+                             response_cycles=IDENT_RESPONSE_CYCLES.get(bundle.loop, RESPONSE_CYCLES))
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
@@ -334,6 +348,13 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
         res["top"][i] = [[int(c), float(p[c])] for c in top]
         res["lead"][i] = phase_lead(f.response, f.response_period, bundle.rule.beta, bundle.input_rate_hz)
     return res
+
+
+def _run(sim: dict[str, Any], i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ``i``'s relay run as a session holds it: from the start of the episode proper (the
+    refinement stages before it ran at other settings: a user's earlier runs, not this one's cycles)."""
+    s0 = int(sim["start"][i]) if "start" in sim else 0
+    return sim["y"][i][s0:], sim["u"][i][s0:]
 
 
 def _nearest(bundle: ModelBundle, truth: dict[str, np.ndarray]) -> np.ndarray:
@@ -471,6 +492,11 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
     rc = load_recipe(recipe)
     if spec.bias_trim is not None:
         rc = replace(rc, test=replace(rc.test, bias_trim=check_bias_trim(spec.bias_trim)))
+    cycles = spec.cycles if spec.cycles is not None else RUN_CYCLES.get(spec.loop)
+    if cycles is not None:
+        if int(cycles) < 3:
+            raise UserError(f"a relay run of {cycles} cycles: identification needs at least 3 (one transient)")
+        rc = replace(rc, episodes=replace(rc.episodes, cycles=float(cycles), duration_s=None))
     if rc.test.settings != "recommended":
         raise UserError(f"{recipe}: settings = {rc.test.settings!r}; the evaluation runs the relay with a user's "
                         "settings (settings = \"recommended\"), never ones made from the true cycle")
@@ -510,7 +536,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
     refused, level = cat("refused"), cat("level")
     ms = cat("ms")
     out: dict[str, Any] = {
-        "spec": {**asdict(spec), "K": list(spec.K), "levels": list(spec.levels)},
+        "spec": {**asdict(spec), "K": list(spec.K), "levels": list(spec.levels), "cycles": rc.episodes.cycles},
         "models": str(models), "recipe": str(recipe), "tool_version": __version__,
         "noise_kinds": list(rc.noise.kinds), "rate_hz": load_bundle(groups[0][1]).rate_hz,
         "rows": _rows(J, refused, level, lateral),

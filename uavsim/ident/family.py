@@ -28,7 +28,10 @@ member, times one of ``FAMILY_SCALES``:
 
 Only a **steady cycle** is answered so (``family_applies``): at least
 ``FAMILY_MIN_CYCLES`` response cycles, whose own responses spread less than
-``FAMILY_SPREAD_LIMITS``. Under 10-20 % noise the measured phase is off by several
+``FAMILY_SPREAD_LIMITS``, as a run of ``FAMILY_REFERENCE_CYCLES`` response cycles would
+(``point_spread``: a longer run's spread is scaled to the one that four cycles need for
+the same 95 % confidence half-width of the mean point, Student's t; a run of 12 response
+cycles passes with a spread about 2.8 times as large). Under 10-20 % noise the measured phase is off by several
 degrees even where the cycles agree (development seed 12: six answers of J 1.4-13
 or unstable at phase spreads of 1.7-2.9 degrees, where the table's answers were
 1.00-1.05); the limits were set on development seeds 11-12 as the widest that added no
@@ -42,7 +45,8 @@ the table's real-time path, as the fitted optimum is.
 
     from uavsim.ident.family import family_applies, family_gains
     if family_applies(f.response_spread, f.response_cycles):
-        g = family_gains(bundle, p, f.response, f.response_period, spread=f.response_spread)
+        g = family_gains(bundle, p, f.response, f.response_period,
+                         spread=point_spread(f.response_spread, f.response_cycles))
         g.kp, g.kd, g.derivative_filter_hz, g.scale, g.T2_s, g.tau_s     # FamilyAnswer (None: no member)
 """
 
@@ -59,8 +63,8 @@ from uavsim.ident.gains import lateral_model, model_loop_params
 from uavsim.learning.decision import COST_CLIP
 
 __all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
-           "FAMILY_MIN_CYCLES", "DEFAULT_FAMILY", "FamilyAnswer", "default_family", "family_applies", "family_members",
-           "family_gains"]
+           "FAMILY_MIN_CYCLES", "FAMILY_REFERENCE_CYCLES", "DEFAULT_FAMILY", "FamilyAnswer", "default_family",
+           "point_spread", "family_applies", "family_members", "family_gains"]
 
 #: log-spaced drag time constants of the box the family is taken at (beside every class's own)
 FAMILY_T2_POINTS = 12
@@ -74,6 +78,8 @@ FAMILY_PHASE_DEG = 2.0
 FAMILY_SPREAD_LIMITS = (0.1, 1.5)
 #: fewest response cycles a family answer is made from
 FAMILY_MIN_CYCLES = 3
+#: the response cycles ``FAMILY_SPREAD_LIMITS`` hold for (the runs of 5 cycles they were set on)
+FAMILY_REFERENCE_CYCLES = 4
 #: loops whose steady cycles answer the family's PD where identification is not told otherwise
 DEFAULT_FAMILY = {"lateral": True}
 
@@ -115,10 +121,27 @@ def default_family(loop: str, family: bool | None) -> bool:
     return bool(family)
 
 
+def point_spread(spread, response_cycles: int, *, reference_cycles: int = FAMILY_REFERENCE_CYCLES
+                 ) -> tuple[float, float]:
+    """The per-cycle spread ``reference_cycles`` response cycles would need for the 95 % confidence
+    half-width of their mean point that ``response_cycles`` cycles of ``spread`` give.
+
+    ``spread`` is ``CycleFeatures.response_spread`` (std of log |G| and of the phase in rad over the
+    cycles, ``ddof=0``); the half-width is ``t(0.975, m - 1) spread / sqrt(m - 1)`` for ``m`` cycles
+    (Student's t: a spread measured on few cycles is itself uncertain). Unchanged at the reference.
+    """
+    from scipy.stats import t
+
+    m, r = max(int(response_cycles), 2), int(reference_cycles)
+    k = (t.ppf(0.975, m - 1) / math.sqrt(m - 1)) / (t.ppf(0.975, r - 1) / math.sqrt(r - 1))
+    return tuple(float(float(v) * k) for v in spread)
+
+
 def family_applies(spread, response_cycles: int, *, limits=FAMILY_SPREAD_LIMITS,
                    min_cycles: int = FAMILY_MIN_CYCLES) -> bool:
-    """Whether a cycle is steady enough for the family answer: ``spread`` (std of log |G|, of the phase in rad)."""
-    sg, sp = (float(v) for v in spread)
+    """Whether a cycle is steady enough for the family answer: ``spread`` (std of log |G|, of the phase in rad,
+    over ``response_cycles`` cycles; compared as ``point_spread`` makes it)."""
+    sg, sp = point_spread(spread, response_cycles)
     return response_cycles >= min_cycles and sg < limits[0] and math.degrees(sp) < limits[1]
 
 
@@ -163,7 +186,8 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     response, response_period : complex, float
         The cycle's fundamental response (``CycleFeatures.response``) and its period, s.
     spread : (float, float)
-        The cycle's ``response_spread`` (std of log |G|, std of the phase in rad).
+        The cycle's ``response_spread`` (std of log |G|, std of the phase in rad) as ``point_spread`` scales
+        it to ``FAMILY_REFERENCE_CYCLES`` cycles.
     attitude : dict or None
         The flight's attitude loop where known better than the bundle's (``fitted_model``'s).
     scales, phase_deg, flat

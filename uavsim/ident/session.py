@@ -48,7 +48,7 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.cycle import extract_cycle
-from uavsim.ident.family import default_family, family_applies, family_gains
+from uavsim.ident.family import default_family, family_applies, family_gains, point_spread
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
@@ -173,7 +173,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if default_family(bundle.loop, family) and ans["gains_source"] == "table" and family_applies(
             f.response_spread, f.response_cycles):
         t0 = time.perf_counter()
-        fam = family_gains(bundle, dec.p[0], f.response, f.response_period, spread=f.response_spread,
+        fam = family_gains(bundle, dec.p[0], f.response, f.response_period,
+                           spread=point_spread(f.response_spread, f.response_cycles),
                            attitude=attitude)
         if fam is not None:
             ans["family"] = {**asdict(fam), "latency_ms": 1e3 * (time.perf_counter() - t0)}
