@@ -309,7 +309,8 @@ def simulate_features(params: list[LumpedParams], recipe: Recipe, seed: int, *,
     res = run_episodes(list(params), plan, ids, duration, int(plan.sim_seeds[0]))
     meta = {"K": K, "bias": bias, "noise_kind": kind, "noise_kinds": list(recipe.noise.kinds), "noise_level": level,
             "y0": y0, "tau_obs": res["tau_obs"], "a_n": res["a_n"], "diverged": res["diverged"], "seed": seed,
-            "duration_s": duration, "run_start_s": stages * stage, "expected_period": T0, "expected_amplitude": a0, "effects": effect_params,
+            "duration_s": duration, "run_start_s": stages * stage, "expected_period": T0, "expected_amplitude": a0,
+            "effects": effect_params,
             "response": res["response"], "response_period": res["response_period"],
             "harmonics_y": res["harmonics_y"], "harmonics_u": res["harmonics_u"]}
     if "y" in res:

@@ -17,8 +17,8 @@ saw and computed them, bias included):
 The period (mean over the cycles used) and the amplitude (half peak-to-peak of
 ``y``) are returned alongside, and the loop's **fundamental response**: the
 ratio of the first harmonics of ``y`` and of the command, ``Y1 / (h U1)``, over
-the last ``RESPONSE_CYCLES`` steady cycles (``response_cycles``). For a linear process that ratio is
-its frequency response ``G(j w)`` at the cycle's frequency ``w`` whatever the
+the last ``RESPONSE_CYCLES`` steady cycles (``response_cycles``). For a linear process
+that ratio is its frequency response ``G(j w)`` at the cycle's frequency ``w`` whatever the
 relay did (bias, ``tau_obs``, ``a_n``, sampling), and zero-mean noise averages
 out of it; the input is shape only, and the gain comes back from the response
 and the identified class's own ``|G(j w)|`` (``uavsim.ident``).

@@ -73,8 +73,8 @@ DUTY_LIMIT = 0.2
 #: when the last cycles are refused, the steady cycles up to this many cycles before the end are tried
 MAX_CYCLES_DROPPED = 3
 #: the same per loop where a run has more cycles to go back over (a loop not named: ``MAX_CYCLES_DROPPED``);
-#: lateral runs of 13 cycles under 10-20 % noise (development seeds 11-12): 10 back refuse 1 and 12 of 480 where
-#: 3 back refuse 5 and 19
+#: lateral runs of 13 cycles under 0-20 % noise (development seeds 11-12, identified on the whole trace before
+#: ``uavsim evaluate`` cut it to the final run): 10 back refuse 1 and 12 of 480 where 3 back refuse 5 and 19
 IDENT_CYCLES_DROPPED: dict[str, int] = {"lateral": 10}
 #: most steady cycles each loop's fundamental response is averaged over, where the run has them
 #: (``uavsim.data.preprocess.features``' ``response_cycles``; a loop not named: ``RESPONSE_CYCLES``)

@@ -14,7 +14,8 @@ bias (a hover-command error) and trim it where the recipe says (``[test] bias_tr
 
 Each episode is identified exactly as a session is (``extract_cycle`` then
 ``identify_cycle`` on its raw traces), from the start of its final relay run: the
-refinement runs before it flew other settings, and a session holds each run on its own. The figure is
+refinement runs before it flew other settings, and a session holds each run on its
+own. The figure is
 
     J = ISE(answer) / ISE(optimal PD of the true process at the control rate)
 
@@ -91,8 +92,8 @@ from uavsim.ident.session import identify_cycle, second_cycle
 from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
-__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "draw_processes", "noise_plan", "evaluate", "summarize",
-           "markdown"]
+__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "draw_processes", "noise_plan", "evaluate",
+           "summarize", "markdown"]
 
 #: noise levels (noise amplitude / cycle amplitude); level 0 is noise-free
 LEVELS = (0.0, 0.05, 0.10, 0.15, 0.20)

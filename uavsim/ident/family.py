@@ -31,8 +31,8 @@ Only a **steady cycle** is answered so (``family_applies``): at least
 ``FAMILY_SPREAD_LIMITS``, as a run of ``FAMILY_REFERENCE_CYCLES`` response cycles would
 (``point_spread``: a longer run's spread is scaled to the one that four cycles need for
 the same 95 % confidence half-width of the mean point, Student's t; a run of 12 response
-cycles passes with a spread about 2.8 times as large). Under 10-20 % noise the measured phase is off by several
-degrees even where the cycles agree (development seed 12: six answers of J 1.4-13
+cycles passes with a spread about 2.8 times as large). Under 10-20 % noise the measured
+phase is off by several degrees even where the cycles agree (development seed 12: six answers of J 1.4-13
 or unstable at phase spreads of 1.7-2.9 degrees, where the table's answers were
 1.00-1.05); the limits were set on development seeds 11-12 as the widest that added no
 unstable answer and raised no p95 there. Elsewhere the class decision's table answer
