@@ -56,7 +56,8 @@ from uavsim.ident.bundle import ModelBundle
 __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_CYCLES_DROPPED",
            "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
-           "extract_cycle", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal", "duty_refusal"]
+           "extract_cycle", "response_cycles", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal",
+           "duty_refusal"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -192,7 +193,7 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     d = d[d >= MIN_CYCLE_SAMPLES]
     typical = float(np.median(d)) * rate_hz / bundle.input_rate_hz if d.size else 0.0
     earliest = len(y) - (IDENT_CYCLES_DROPPED.get(bundle.loop, MAX_CYCLES_DROPPED) + 0.5) * typical
-    rc = IDENT_RESPONSE_CYCLES.get(bundle.loop, RESPONSE_CYCLES)
+    rc = response_cycles(bundle.loop)
     cuts = [len(y)] + [int(e) + 1 for e in edges[::-1][: max(len(edges) - bundle.cycles - 2, 0)] if e >= earliest]
 
     def checked(stop: int, tol: float | None) -> CycleFeatures:
@@ -227,6 +228,12 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
         except NoOscillation:
             continue
     raise first
+
+
+def response_cycles(loop: str) -> int:
+    """Most steady cycles identification averages ``loop``'s fundamental response over (``IDENT_RESPONSE_CYCLES``,
+    else ``RESPONSE_CYCLES``): ``features``' ``response_cycles`` wherever a run of that loop is read."""
+    return IDENT_RESPONSE_CYCLES.get(loop, RESPONSE_CYCLES)
 
 
 def _pair_mismatch(edges: np.ndarray, stop: int) -> float:

@@ -83,7 +83,7 @@ from uavsim.control.relay import check_bias_trim, relay_command
 from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
-from uavsim.ident.cycle import IDENT_RESPONSE_CYCLES, extract_cycle, phase_lead
+from uavsim.ident.cycle import extract_cycle, phase_lead, response_cycles
 from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard
@@ -142,7 +142,7 @@ class EvalSpec:
     cycles : relay cycles each run flies (the first is the transient); None: the loop's ``RUN_CYCLES``,
         else the recipe's ``[episodes] cycles`` (the training sets' length). The run's length is a
         user's choice: its point's standard error falls with the root of the steady cycles it
-        averages (``uavsim.ident.cycle.IDENT_RESPONSE_CYCLES``)
+        averages (``uavsim.ident.cycle.response_cycles``)
     """
 
     loop: str = "altitude"
@@ -311,7 +311,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     ``sim2``: a second run of every episode at another ``beta``; where it holds a cycle, it weighs the
     belief (``identify_cycle``'s ``second``), else the episode is identified from its first run alone.
     """
-    from uavsim.data.preprocess import RESPONSE_CYCLES, features
+    from uavsim.data.preprocess import features
 
     n = len(sim["y"])
     rate, h = recipe.episodes.rate_hz, recipe.test.h
@@ -339,7 +339,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             res["why"][i] = str(exc)
             try:
                 f = features(y, u, rate, h, kw["bias"], bundle.input_length, cycles=bundle.cycles,
-                             response_cycles=IDENT_RESPONSE_CYCLES.get(bundle.loop, RESPONSE_CYCLES))
+                             response_cycles=response_cycles(bundle.loop))
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
@@ -354,7 +354,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
 def _run(sim: dict[str, Any], i: int) -> tuple[np.ndarray, np.ndarray]:
     """Episode ``i``'s relay run as a session holds it: from the start of the episode proper (the
     refinement stages before it ran at other settings: a user's earlier runs, not this one's cycles)."""
-    s0 = int(sim["start"][i]) if "start" in sim else 0
+    s0 = int(sim["start"][i])
     return sim["y"][i][s0:], sim["u"][i][s0:]
 
 
