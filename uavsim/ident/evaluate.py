@@ -83,6 +83,7 @@ from uavsim.control.relay import check_bias_trim, relay_command
 from uavsim.data.preprocess import process_response
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
+from uavsim.ident.consistent import consistent_activations
 from uavsim.ident.cycle import extract_cycle, phase_lead, response_cycles
 from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
@@ -343,7 +344,7 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
-        res["act"][i] = cycle_activations(bundle, f, combine=combine)[0]
+        res["act"][i] = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)[0]
         p = decide(res["act"][i], decision="argmax", temperature=bundle.temperature).p[0]
         top = np.argsort(-p)[:TOP_RECORDED]
         res["top"][i] = [[int(c), float(p[c])] for c in top]

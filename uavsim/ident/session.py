@@ -4,7 +4,8 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
 
 1. the last steady cycle, exactly as the training sets were built, checked
    (``uavsim.ident.cycle.extract_cycle``);
-2. the class: the answer of least expected J under the network's softmax, over the
+2. the class: the answer of least expected J under the network's softmax (on attitude
+   loops kept to the classes the measured point allows: ``uavsim.ident.consistent``), over the
    bundle's cost matrix and (inner loops' default, ``decision="blend"``) over the belief's
    models fitted to the measured point (``uavsim.ident.select.decide_class``;
    ``decision="argmax"``: the most likely class, also what a bundle exported without the
@@ -47,6 +48,7 @@ from uavsim.data.preprocess import CycleFeatures
 from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
+from uavsim.ident.consistent import consistent_activations
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.family import default_family, family_applies, family_gains, point_spread
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
@@ -119,7 +121,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     guard = default_guard(bundle.loop, guard)
-    act = cycle_activations(bundle, f, combine=combine)
+    act = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)
     if second is not None:  # the belief weighed by how each class fits both measured points
         from uavsim.ident.twopoint import two_point_activations
 
