@@ -319,7 +319,9 @@ def _grid_bundle(family: str, L: int):
     classes = {k: np.asarray(g.params[k], float) for k in ("T_prop", "T1", "tau")}
     classes["period"] = np.asarray(g.period, float)
     classes.update({k: v for k, v in class_table_gains(family, 200.0, None).items() if k != "J"})
-    net = ClassNetwork(g.n)
+    # sure of its class, as lateral_grid_bundle's stand-in is: with logit 1 the other classes held most of the
+    # belief between them, and a rule that takes some out of it would hand the rest to the guard
+    net = ClassNetwork(g.n, logit=8.0)
     net.input_length = L
     return g, ModelBundle(dir=Path("grid"), loop=family, rate_hz=200.0, rule=g.rule, input_length=L, cycles=1,
                           input_rate_hz=200.0, classes=classes, predictor=net, meta={})

@@ -100,7 +100,8 @@ __all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "draw_processe
 LEVELS = (0.0, 0.05, 0.10, 0.15, 0.20)
 #: the detuning control: the answer's gains times this
 DETUNE = 0.85
-#: the network's most likely classes (with their softmax) recorded per episode
+#: the belief's most likely classes (with their softmax) recorded per episode: the network's, kept to the
+#: classes the measured point allows (``uavsim.ident.consistent``), as the decisions see it
 TOP_RECORDED = 8
 #: the goals: inner loops (median, p95, max of J, unstable, refused fraction), lateral (p95, unstable)
 GOALS = {"inner": {"median": 1.03, "p95": 1.10, "max": 1.5, "unstable": 0, "refused_fraction": 0.02},
