@@ -22,8 +22,10 @@ allows: ``uavsim.ident.family``).
 
 Measured on development seeds 11-20 (3,000 off-grid attitude processes, noise 0-20 %,
 docs/results/identification.md): J p95 1.126 -> 1.118, max 7.12 -> 1.69, answers above
-1.1 230 -> 207, unstable or refused 21 -> 21. On altitude the same rule moved answers
-both ways without a gain (p95 1.110 -> 1.111), so it is off there.
+1.1 230 -> 207, unstable or refused 21 -> 21; report seed 2044, run once: p95 1.117 -> 1.111
+on the same processes. On altitude the same rule moved answers both ways without a gain
+(p95 1.110 -> 1.111), and on lateral loops (each class's ``T2`` over the attitude loop) it
+changed a few answers each way (development seeds 11-12), so both are off.
 
     from uavsim.ident.consistent import consistent_activations
     act = consistent_activations(bundle, cycle_activations(bundle, f), f)
