@@ -42,7 +42,7 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.ident.response import measured_phase, unit_response
 
 __all__ = ["POINT_PHASE_TOL_DEG", "EXCLUDED_LOGIT", "delay_phase_deg", "phase_tolerance_deg",
-           "consistent_classes", "consistent_activations"]
+           "consistent_classes", "ruled_out", "consistent_activations"]
 
 #: the least tolerance (deg) on a class's delay-free phase beyond the measured one, per loop; a loop not
 #: named keeps the network's belief (module docstring)
@@ -86,12 +86,22 @@ def consistent_classes(bundle: ModelBundle, f: CycleFeatures) -> np.ndarray | No
     return delay_phase_deg(bundle, f.response, f.response_period) >= -tol
 
 
-def consistent_activations(bundle: ModelBundle, activations: np.ndarray, f: CycleFeatures) -> np.ndarray:
+def ruled_out(allowed: np.ndarray | None) -> np.ndarray | None:
+    """The classes the rule takes out of the belief, (n_classes,) bool, from ``consistent_classes``'
+    answer; None where it changes nothing (a loop not named, every class allowed, or none)."""
+    if allowed is None or allowed.all() or not allowed.any():
+        return None
+    return ~allowed
+
+
+def consistent_activations(bundle: ModelBundle, activations: np.ndarray, f: CycleFeatures, *,
+                           allowed: np.ndarray | None = None) -> np.ndarray:
     """``activations`` (1, n) or (n,) with the classes the point rules out taken down by
     ``EXCLUDED_LOGIT`` temperatures below the least; unchanged where the loop is not named, or where
-    the point allows every class or none. Returns (1, n) float64."""
+    the point allows every class or none. ``allowed``: ``consistent_classes(bundle, f)`` where the
+    caller has it. Returns (1, n) float64."""
     a = np.atleast_2d(np.asarray(activations, dtype=np.float64))
-    ok = consistent_classes(bundle, f)
-    if ok is None or ok.all() or not ok.any():
+    out = ruled_out(consistent_classes(bundle, f) if allowed is None else allowed)
+    if out is None:
         return a
-    return np.where(ok[None, :], a, a.min() - EXCLUDED_LOGIT * bundle.temperature)
+    return np.where(out[None, :], a.min() - EXCLUDED_LOGIT * bundle.temperature, a)
