@@ -14,8 +14,8 @@ Under 15-20 % noise the network sometimes puts most of its belief on such classe
 the answer's J 7.1). ``consistent_activations`` takes them out of the belief before
 the decision: a class stays where the phase its delay must supply
 (``delay_phase_deg``) is at least minus the tolerance, the larger of the loop's
-``POINT_PHASE_TOL_DEG`` (the grid's spacing and the vehicle's own misfit of the lumped
-model) and the point's standard error (its cycles' phase spread over the root of their
+``POINT_PHASE_TOL_DEG`` (room for the grid's spacing and the vehicle's own misfit of the
+lumped model; set on development seeds 11-20 against 0, 7.5 and 20 degrees) and the point's standard error (its cycles' phase spread over the root of their
 count). Where no class is within it, the belief is left as it is. A loop not named
 keeps the network's belief (lateral loops answer over the family of models the point
 allows: ``uavsim.ident.family``).
