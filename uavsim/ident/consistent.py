@@ -28,7 +28,7 @@ on the same processes. On altitude the same rule moved answers both ways without
 changed a few answers each way (development seeds 11-12), so both are off.
 
     from uavsim.ident.consistent import consistent_activations
-    act = consistent_activations(bundle, cycle_activations(bundle, f), f)
+    act, n_out = consistent_activations(bundle, cycle_activations(bundle, f), f)   # n_out: classes ruled out
 """
 
 from __future__ import annotations
@@ -39,10 +39,10 @@ import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures, process_response
 from uavsim.ident.bundle import ModelBundle
-from uavsim.ident.response import measured_phase, unit_response
+from uavsim.ident.response import class_response, measured_phase, point_sigmas
 
 __all__ = ["POINT_PHASE_TOL_DEG", "EXCLUDED_LOGIT", "delay_phase_deg", "phase_tolerance_deg",
-           "consistent_classes", "ruled_out", "consistent_activations"]
+           "consistent_classes", "consistent_activations"]
 
 #: the least tolerance (deg) on a class's delay-free phase beyond the measured one, per loop; a loop not
 #: named keeps the network's belief (module docstring)
@@ -52,29 +52,27 @@ EXCLUDED_LOGIT = 50.0
 
 
 def delay_phase_deg(bundle: ModelBundle, response: complex, response_period: float) -> np.ndarray:
-    """The phase (deg) each inner-loop class's delay must supply to reach the measured point, (n_classes,).
+    """The phase (deg) each class's delay must supply to reach the measured point, (n_classes,).
 
-    ``degrees(arg G0_c(j w) - arg G(j w))`` with ``G0_c`` the class's delay-free model and the
-    measured phase on the branch nearest the class's own (``measured_phase``); negative where the
-    class's lags alone lag more than the measurement.
+    ``degrees(arg G0_c(j w) - arg G(j w))`` with ``G0_c`` the class's delay-free model
+    (``class_response``) and the measured phase on the branch nearest the class's own
+    (``measured_phase``); negative where the class's lags alone lag more than the measurement.
     """
-    c = bundle.column
-    per = np.array([float(response_period)])
+    per = float(response_period)
     w = 2.0 * math.pi / per
-    G = process_response(np.array([complex(response)]), per, rate_hz=bundle.input_rate_hz)
-    _, ph0 = unit_response(w, c("T_prop"), c("T1"))
-    return np.degrees(ph0 - measured_phase(G, ph0, w, c("tau")))
+    G = complex(process_response(complex(response), per, rate_hz=bundle.input_rate_hz))
+    _, ph0 = class_response(bundle, np.arange(bundle.n_classes), [w])
+    return np.degrees(ph0[:, 0] - measured_phase(G, ph0[:, 0], w, bundle.column("tau")))
 
 
 def phase_tolerance_deg(loop: str, phase_spread_rad: float, cycles: int) -> float | None:
-    """The loop's tolerance (deg): its ``POINT_PHASE_TOL_DEG`` or the point's standard error, the
-    larger (``phase_spread_rad``: std of the cycles' phases; ``cycles``: their count); None for a loop
-    not named."""
+    """The loop's tolerance (deg): its ``POINT_PHASE_TOL_DEG`` or the point's standard error
+    (``point_sigmas``), the larger (``phase_spread_rad``: std of the cycles' phases; ``cycles``: their
+    count); None for a loop not named."""
     floor = POINT_PHASE_TOL_DEG.get(loop)
     if floor is None:
         return None
-    se = math.degrees(float(phase_spread_rad)) / math.sqrt(max(int(cycles), 1))
-    return max(float(floor), se if math.isfinite(se) else 0.0)
+    return max(float(floor), math.degrees(point_sigmas((0.0, phase_spread_rad), cycles)[1]))
 
 
 def consistent_classes(bundle: ModelBundle, f: CycleFeatures) -> np.ndarray | None:
@@ -86,22 +84,13 @@ def consistent_classes(bundle: ModelBundle, f: CycleFeatures) -> np.ndarray | No
     return delay_phase_deg(bundle, f.response, f.response_period) >= -tol
 
 
-def ruled_out(allowed: np.ndarray | None) -> np.ndarray | None:
-    """The classes the rule takes out of the belief, (n_classes,) bool, from ``consistent_classes``'
-    answer; None where it changes nothing (a loop not named, every class allowed, or none)."""
-    if allowed is None or allowed.all() or not allowed.any():
-        return None
-    return ~allowed
-
-
-def consistent_activations(bundle: ModelBundle, activations: np.ndarray, f: CycleFeatures, *,
-                           allowed: np.ndarray | None = None) -> np.ndarray:
+def consistent_activations(bundle: ModelBundle, activations: np.ndarray, f: CycleFeatures
+                           ) -> tuple[np.ndarray, int]:
     """``activations`` (1, n) or (n,) with the classes the point rules out taken down by
-    ``EXCLUDED_LOGIT`` temperatures below the least; unchanged where the loop is not named, or where
-    the point allows every class or none. ``allowed``: ``consistent_classes(bundle, f)`` where the
-    caller has it. Returns (1, n) float64."""
+    ``EXCLUDED_LOGIT`` temperatures below the least, as (1, n) float64, and how many it took out.
+    Unchanged (0 out) where the loop is not named, or where the point allows every class or none."""
     a = np.atleast_2d(np.asarray(activations, dtype=np.float64))
-    out = ruled_out(consistent_classes(bundle, f) if allowed is None else allowed)
-    if out is None:
-        return a
-    return np.where(out[None, :], a.min() - EXCLUDED_LOGIT * bundle.temperature, a)
+    ok = consistent_classes(bundle, f)
+    if ok is None or ok.all() or not ok.any():
+        return a, 0
+    return np.where(ok[None, :], a, a.min() - EXCLUDED_LOGIT * bundle.temperature), int((~ok).sum())

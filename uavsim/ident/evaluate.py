@@ -345,7 +345,8 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
             except NoOscillation:
                 continue
         res["response"][i], res["response_period"][i] = f.response, f.response_period
-        res["act"][i] = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)[0]
+        act, _ = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)
+        res["act"][i] = act[0]
         p = decide(res["act"][i], decision="argmax", temperature=bundle.temperature).p[0]
         top = np.argsort(-p)[:TOP_RECORDED]
         res["top"][i] = [[int(c), float(p[c])] for c in top]

@@ -14,16 +14,26 @@ the one place that says how the attitude PD closes it.
     from uavsim.ident.response import fit_response
     m = fit_response(f.response, f.response_period, T_prop=0.1, T1=0.8, tau_class=0.02)
     m["K"], m["tau"]
+
+``class_response`` is every class's delay-free model at a frequency (what the two-point fit and
+the point's consistency check compare the measurement with), ``point_sigmas`` the measured
+point's standard errors.
 """
 
 from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from uavsim.data.preprocess import process_response
 
+if TYPE_CHECKING:
+    from uavsim.ident.bundle import ModelBundle
+
 __all__ = ["fit_response", "fit_response_lateral", "attitude_loop_response", "unit_response",
-           "unit_response_lateral", "measured_phase"]
+           "unit_response_lateral", "class_response", "measured_phase", "point_sigmas"]
 
 
 def measured_phase(G: np.ndarray, ph0: np.ndarray, w: np.ndarray, tau_class: np.ndarray) -> np.ndarray:
@@ -113,3 +123,28 @@ def fit_response_lateral(response, response_period, *, T2, tau_class, attitude: 
     Tatt = attitude_loop_response(w.ravel(), attitude).reshape(w.shape)
     mag0, ph0 = unit_response_lateral(w, T2, Tatt)
     return {"K": np.abs(G) / mag0, "T2": T2, "tau": _fitted_delay(G, ph0, w, tau_c), "tau_class": tau_c}
+
+
+def class_response(bundle: ModelBundle, cls, omega) -> tuple[np.ndarray, np.ndarray]:
+    """Magnitude and unwrapped phase (rad) of the classes' unit-gain, delay-free models at ``omega``.
+
+    ``cls`` (n,), ``omega`` (k,) rad/s; returns two (n, k) arrays. Inner loops:
+    ``1 / (jw (T_prop jw + 1)(T1 jw + 1))``; lateral: ``T_att(jw) / (jw (T2 jw + 1))`` over the
+    bundle's closed attitude loop (``attitude_loop_response``).
+    """
+    cls = np.asarray(cls, dtype=np.int64)
+    w = np.atleast_1d(np.asarray(omega, dtype=np.float64))[None, :]
+    c = bundle.column
+    if bundle.loop == "lateral":
+        Tatt = attitude_loop_response(w[0], dict(bundle.attitude or {}))[None, :]
+        return unit_response_lateral(w, c("T2")[cls][:, None], Tatt)
+    return unit_response(w, c("T_prop")[cls][:, None], c("T1")[cls][:, None])
+
+
+def point_sigmas(spread, cycles: int, floor: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float]:
+    """A measured point's standard errors (std of log |G|, of the phase in rad): its cycles' spread
+    (``CycleFeatures.response_spread``; not finite: 0) over the root of their count ``cycles``, at least
+    ``floor`` (log gain, phase in deg)."""
+    n = max(int(cycles), 1)
+    sg, sp = (float(s) if np.isfinite(s) else 0.0 for s in spread)
+    return max(sg / math.sqrt(n), floor[0]), max(sp / math.sqrt(n), math.radians(floor[1]))

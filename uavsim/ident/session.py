@@ -48,7 +48,7 @@ from uavsim.data.preprocess import CycleFeatures
 from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
-from uavsim.ident.consistent import consistent_activations, consistent_classes, ruled_out
+from uavsim.ident.consistent import consistent_activations
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.family import default_family, family_applies, family_gains, point_spread
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
@@ -122,9 +122,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     guard = default_guard(bundle.loop, guard)
-    allowed = consistent_classes(bundle, f)
-    out = ruled_out(allowed)
-    act = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f, allowed=allowed)
+    act, n_out = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)
     if second is not None:  # the belief weighed by how each class fits both measured points
         from uavsim.ident.twopoint import two_point_activations
 
@@ -190,7 +188,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     ans["gains_measured_point"] = _floats(gm)
     ans["decision"] = {"decision": dec.decision, "expected_J": None if np.isnan(dec.expected_J[0]) else
                        float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c]),
-                       "scale": dec_scale, "ruled_out": 0 if out is None else int(out.sum())}
+                       "scale": dec_scale, "ruled_out": n_out}
     ans["softmax_top"] = float(dec.p[0, c])
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
                           "stop": f.stop, "inputs": f.inputs, "input_cycles": f.input_cycles}

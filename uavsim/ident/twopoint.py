@@ -39,16 +39,11 @@ import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures, process_response
 from uavsim.ident.bundle import ModelBundle
-from uavsim.ident.response import (
-    attitude_loop_response,
-    measured_phase,
-    unit_response,
-    unit_response_lateral,
-)
+from uavsim.ident.response import class_response, measured_phase, point_sigmas
 from uavsim.learning.decision import softmax
 
 __all__ = ["SECOND_BETA", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA", "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S",
-           "class_response", "two_point_fit", "two_point_activations"]
+           "two_point_fit", "two_point_activations"]
 
 #: the second run's MRFT parameter a user flies
 SECOND_BETA = -0.3
@@ -62,28 +57,10 @@ TAU_LOG_SIGMA = 0.5
 TAU_LOG_OFFSET_S = 0.001
 
 
-def class_response(bundle: ModelBundle, cls, omega) -> tuple[np.ndarray, np.ndarray]:
-    """Magnitude and unwrapped phase (rad) of the classes' unit-gain, delay-free models at ``omega``.
-
-    ``cls`` (n,), ``omega`` (k,) rad/s; returns two (n, k) arrays. Inner loops:
-    ``1 / (jw (T_prop jw + 1)(T1 jw + 1))``; lateral: ``T_att(jw) / (jw (T2 jw + 1))`` over the
-    bundle's closed attitude loop (``uavsim.ident.response.attitude_loop_response``).
-    """
-    cls = np.asarray(cls, dtype=np.int64)
-    w = np.atleast_1d(np.asarray(omega, dtype=np.float64))[None, :]
-    c = bundle.column
-    if bundle.loop == "lateral":
-        Tatt = attitude_loop_response(w[0], dict(bundle.attitude or {}))[None, :]
-        return unit_response_lateral(w, c("T2")[cls][:, None], Tatt)
-    return unit_response(w, c("T_prop")[cls][:, None], c("T1")[cls][:, None])
-
-
 def _sigmas(f: CycleFeatures, extra: tuple[float, float]) -> tuple[float, float]:
-    """A point's uncertainty (log gain, phase rad): its cycles' spread over the root of their count,
-    floored (``SIGMA_FLOOR``), with ``extra`` (log gain, deg) added in quadrature."""
-    n = max(int(f.response_cycles), 1)
-    sg, sp = (float(s) if np.isfinite(s) else 0.0 for s in f.response_spread)
-    sg, sp = max(sg / math.sqrt(n), SIGMA_FLOOR[0]), max(sp / math.sqrt(n), math.radians(SIGMA_FLOOR[1]))
+    """A point's uncertainty (log gain, phase rad): its standard errors (``point_sigmas``), floored
+    (``SIGMA_FLOOR``), with ``extra`` (log gain, deg) added in quadrature."""
+    sg, sp = point_sigmas(f.response_spread, f.response_cycles, SIGMA_FLOOR)
     return math.hypot(sg, extra[0]), math.hypot(sp, math.radians(extra[1]))
 
 
