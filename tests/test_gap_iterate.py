@@ -379,3 +379,50 @@ def test_noise_by_level_leaves_one_place_for_the_search(monkeypatch):
     calls = _script(monkeypatch, [("bias", 10.0, 3.0)])
     flow = iterate.analyse(_identified(monkeypatch, 2.0 * level), max_effects=1)
     assert [e.name for e in flow.found] == ["noise"] and flow.steps[0].effect == "none"
+
+
+def _refit_by_effects(gaps, starts=None):
+    """A refit whose model flies at gaps[names of the session's effects] (fresh seeds), the start kept."""
+
+    def fake(session, model, **kw):
+        g = gaps[tuple(e.name for e in session.effects)]
+        if starts is not None:
+            starts[tuple(e.name for e in session.effects)] = model
+        return RefitResult(model=model, start=model, gap_before=g, gap_after=g, moved=dict.fromkeys(PARAMS, 1.0),
+                           accepted=False, iterations=0, episodes=0, seconds=0.0)  # fmt: skip
+
+    return fake
+
+
+def test_staircase_cause_read_off_the_samples_is_named_when_the_base_model_flies_better_with_it(monkeypatch):
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    starts = {}
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 20.0, ("sample_hold",): 3.0}, starts))
+    msgs = []
+    flow = iterate.analyse(_identified(monkeypatch, 0.0, staircase=True), log=msgs.append)
+    # every sample held twice at 200 Hz: frames of 100 Hz, read to the sample
+    assert flow.answer == "named" and [e.name for e in flow.found] == ["sample_hold"]
+    assert flow.found[0].params["rate_hz"] == pytest.approx(100.0, rel=0.01)
+    # both refits start from the identified model
+    assert starts[()] == starts[("sample_hold",)]
+    assert flow.from_samples[0]["gap_without"] == 20.0 and flow.from_samples[0]["gap_with"] == 3.0
+    # the gap before is the base model's without it; the search runs on the model with it and does not try it
+    assert flow.gap_before == 20.0 and flow.gap_after == 3.0
+    assert calls[0]["effects"] == ["sample_hold"] and "sample_hold" not in calls[0]["candidates"]
+    assert any(m.startswith("sample_hold read off the samples") for m in msgs)
+    assert "read off the samples" in iterate.format_flow(flow)
+    assert flow.to_json()["from_samples"][0]["name"] == "sample_hold"
+
+
+def test_staircase_cause_is_not_named_when_the_model_flies_no_better_with_it(monkeypatch):
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 3.0, ("sample_hold",): 3.5}))
+    flow = iterate.analyse(_identified(monkeypatch, 0.0, staircase=True))
+    assert flow.answer == "none" and flow.found == [] and flow.from_samples == []
+    assert calls[0]["effects"] == [] and flow.gap_before == 3.0
+    # a clean session reads nothing: one refit, the search as before
+    seen = []
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    monkeypatch.setattr(iterate, "refit_base", lambda s, m, **kw: seen.append(s.effects) or _no_refit(s, m))
+    flow = iterate.analyse(_identified(monkeypatch, 0.0))
+    assert seen == [[]] and flow.from_samples == [] and calls[0]["effects"] == []

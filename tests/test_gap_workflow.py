@@ -314,3 +314,24 @@ def test_staircase_cause_read_off_the_samples():
     y = np.round(np.repeat(y[::5], 5)[: t.size] / 0.05) * 0.05
     both = SimpleNamespace(runs=[SimpleNamespace(data=SimpleNamespace(y=y))])
     assert ruled_out(both, 200.0) == set() and set(data_hints(both, 200.0)) == {"quantization", "sample_hold"}
+
+
+def test_staircase_cause_is_read_with_its_parameter_only_where_the_samples_show_it_alone():
+    from types import SimpleNamespace
+
+    from uavsim.gap.workflow import read_off_samples
+
+    quant, tq = hidden_session(2, effect="quantization", loop="roll")
+    held, th = hidden_session(1, effect="sample_hold", loop="roll")
+    clean, _ = hidden_session(1, effect="none", loop="roll")
+    (q,) = read_off_samples(quant, 200.0)
+    assert q.name == "quantization" and q.params["step"] == pytest.approx(tq.params["step"], rel=1e-9)
+    (h,) = read_off_samples(held, 200.0)
+    assert h.name == "sample_hold" and h.params["rate_hz"] == pytest.approx(th.params["rate_hz"], rel=0.02)
+    assert read_off_samples(clean, 200.0) == []
+    # a quantized hold shows both causes: neither is read, the search keeps both
+    t = np.arange(4000) / 200.0
+    y = np.sin(2 * np.pi * t / 0.5) + 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    y = np.round(np.repeat(y[::5], 5)[: t.size] / 0.05) * 0.05
+    both = SimpleNamespace(runs=[SimpleNamespace(data=SimpleNamespace(y=y))])
+    assert read_off_samples(both, 200.0) == []

@@ -24,7 +24,7 @@ class _Flow:
     steps = [SimpleNamespace(ranking=[])]
 
     def to_json(self):
-        return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "steps": [],
+        return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "from_samples": [], "steps": [],
                 "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=2.6e-4)}  # fmt: skip
 
 
@@ -42,3 +42,17 @@ def test_summary_of_a_record_without_the_field():
     r = {"name": "tb_9", "condition": "identified", "kind": "none", "loop": "roll", "truth": "none",
          "answer": "none", "found": [], "gap_before": 3.0, "gap_after": 3.0, "ok": True, "seconds": 50.0}  # fmt: skip
     assert "| tb_9 | none | roll | none | none |  | 3.00 -> 3.00 | yes | 50 |" in score.summary([r])
+
+
+def test_record_marks_what_was_read_off_the_samples(tmp_path, monkeypatch):
+    folder = _truth(tmp_path, effects=({"name": "quantization", "params": {"step": 0.005}},))
+    flow = _Flow()
+    flow.to_json = lambda: {"found": [{"name": "quantization", "step": 0.005}], "by_level": [],
+                            "from_samples": [{"name": "quantization", "step": 0.005, "gap_without": 20.0,
+                                              "gap_with": 4.0}], "steps": [],
+                            "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
+    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
+    r = score.one(folder, None, "identified", 0)
+    assert r["from_samples"] == ["quantization"] and r["ok"] and r["param_rel_err"] < 1e-12
+    assert "quantization step 0.005 (off the samples)" in score.summary([r])

@@ -34,6 +34,11 @@
    :data:`NOISE_STD` of the loop family (what clean sessions stay under) and the
    samples hold no staircase, the measurement's noise is named ``noise`` from its
    level (:func:`noise_by_level`) and the search does not try it again.
+   A staircase that shows its cause alone (quantization's level lattice, a hold's
+   frames: :func:`uavsim.gap.workflow.read_off_samples`) names that cause with the
+   parameter read off the samples, when the base model refitted with it in the loop
+   flies the runs better than the one refitted without; that refit is the base model
+   of the search, and the gap before is the one without.
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
    clean sessions of the testbed vehicle, development seeds), ``absorbed``
@@ -79,6 +84,7 @@ from uavsim.gap.workflow import (
     credited_gap,
     data_hints,
     format_table,
+    read_off_samples,
     run_gap,
 )
 from uavsim.lumped.frequency import unwrapped_phase_batch
@@ -184,6 +190,10 @@ class FlowResult:
     by_level : list of str
         Effects in ``found`` named from the measured level rather than the gap
         (:func:`noise_by_level`).
+    from_samples : list of dict
+        Effects in ``found`` read off the measured samples (a staircase's cause:
+        :func:`uavsim.gap.workflow.read_off_samples`), each ``{"name", <param>,
+        "gap_without", "gap_with"}``: the refitted base model's gap without and with it.
     seconds : float
         Wall time, identification included.
     """
@@ -202,6 +212,7 @@ class FlowResult:
     seconds: float
     session: Session | None = field(default=None, repr=False)
     by_level: list[str] = field(default_factory=list)
+    from_samples: list[dict] = field(default_factory=list)
 
     @property
     def final(self) -> GapResult:
@@ -219,6 +230,7 @@ class FlowResult:
                 "params": dict(self.found[-1].params) if self.found else {},
                 "found": [{"name": e.name, **e.params} for e in self.found],
                 "by_level": list(self.by_level),
+                "from_samples": [dict(d) for d in self.from_samples],
                 "gap_before": self.gap_before,
                 "gap_after": self.gap_after,
                 "base_source": self.base_source,
@@ -503,13 +515,34 @@ def analyse(
         log(
             f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)"
         )
+    found: list[EffectSpec] = []
+    from_samples: list[dict] = []
+    gap_without = None
     if source == "identified" and refit:
-        fit = refit_base(live, model, seed=seed, nthread=nthread, log=log,
-                         starts=class_starts(ident, model) if screen else None)
+        starts = class_starts(ident, model) if screen else None
+        fit = refit_base(live, model, seed=seed, nthread=nthread, log=log, starts=starts)
         ident["refit"] = fit.to_json()
+        shown = read_off_samples(live, live.control_rate_hz)
+        if shown:
+            # the identified model was fitted to the staircase: refitted with its cause in the loop, it moves
+            # to the vehicle's lumped model, where a gap search from the model without it drifts off the cause
+            with_it = dataclasses.replace(live, effects=list(live.effects) + shown)
+            fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts)
+            if _fit_gap(fit_s) < _fit_gap(fit):
+                gap_without, fit = _fit_gap(fit), fit_s
+                ident["refit"] = fit.to_json()
+                found += shown
+                live = with_it
+                for e in shown:
+                    log(f"{e.name} read off the samples ({_params_text(e)}): the refit with it flies the runs at "
+                        f"gap {_fit_gap(fit):.3f}, without it at {gap_without:.3f}")  # fmt: skip
+                from_samples = [{"name": e.name, **e.params, "gap_without": gap_without, "gap_with": _fit_gap(fit)}
+                                for e in shown]  # fmt: skip
+            else:
+                log(f"{', '.join(e.name for e in shown)} shown by the samples but not named: the refit with it "
+                    f"flies the runs at gap {_fit_gap(fit_s):.3f}, without it at {_fit_gap(fit):.3f}")  # fmt: skip
         model = fit.model
     steps: list[GapResult] = []
-    found: list[EffectSpec] = []
     cur, cur_model = live, model
     by_level = None
     if source == "identified":
@@ -576,7 +609,7 @@ def analyse(
         cur = dataclasses.replace(cur, model=cur_model, effects=list(res.effects))
         if len(found) >= max_effects:
             break
-    gap_before = steps[0].gap_before
+    gap_before = steps[0].gap_before if gap_without is None else gap_without
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
@@ -585,7 +618,17 @@ def analyse(
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
-                      by_level=[by_level.name] if by_level is not None else [])  # fmt: skip
+                      by_level=[by_level.name] if by_level is not None else [],
+                      from_samples=from_samples)  # fmt: skip
+
+
+def _fit_gap(fit) -> float:
+    """The gap of the model a refit answers (the refit's when kept, else its start's), fresh seeds."""
+    return float(fit.gap_after if fit.accepted else fit.gap_before)
+
+
+def _params_text(e: EffectSpec) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in e.params.items())
 
 
 def format_flow(flow: FlowResult) -> str:
@@ -605,7 +648,8 @@ def format_flow(flow: FlowResult) -> str:
             "answer: named "
             + " + ".join(
                 f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
-                + ("; from its level, which the gap cannot show" if e.name in flow.by_level else "") + ")"
+                + ("; from its level, which the gap cannot show" if e.name in flow.by_level else "")
+                + ("; read off the samples" if e.name in {d["name"] for d in flow.from_samples} else "") + ")"
                 for e in flow.found
             )
         )

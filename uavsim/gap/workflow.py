@@ -65,7 +65,7 @@ from uavsim.gap.features import (
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
-__all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out",
+__all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
            "credited_gap", "read_model_file", "candidate_grid"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
@@ -251,6 +251,23 @@ def data_hints(session: Session, rate_hz: float) -> dict[str, float]:
 def ruled_out(session: Session, rate_hz: float) -> set[str]:
     """Vocabulary effects the measured samples exclude (:func:`data_hints`): of a staircase's two causes, the one it does not show."""
     return _staircase(session, rate_hz)[1]
+
+
+def read_off_samples(session: Session, rate_hz: float) -> list[EffectSpec]:
+    """The staircase's cause with its parameter, where the measured samples show that cause alone.
+
+    A staircase on a level lattice that passes lone samples is quantization with
+    the lattice's step; one held in frames off any lattice is a sample-and-hold at
+    the frames' rate (:func:`data_hints`, :func:`ruled_out`). Both are read to the
+    sample, where a gap search on an identified base model (itself fitted to the
+    staircase) drifts off them. A staircase that shows both or neither reads nothing.
+    """
+    hints, out = _staircase(session, rate_hz)
+    if out == {"sample_hold"} and hints.get("quantization", 0.0) > 0:
+        return [EffectSpec("quantization", {"step": float(hints["quantization"])})]
+    if out == {"quantization"} and hints.get("sample_hold", 0.0) > 0:
+        return [EffectSpec("sample_hold", {"rate_hz": float(hints["sample_hold"])})]
+    return []
 
 
 def _staircase(session: Session, rate_hz: float) -> tuple[dict[str, float], set[str]]:
