@@ -74,7 +74,7 @@ from uavsim.formats.session import (
     write_session,
 )
 from uavsim.gap.features import run_features
-from uavsim.gap.refit import refit_base
+from uavsim.gap.refit import RefitResult, refit_base
 from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import (
     CANDIDATES,
@@ -622,7 +622,7 @@ def analyse(
                       from_samples=from_samples)  # fmt: skip
 
 
-def _fit_gap(fit) -> float:
+def _fit_gap(fit: RefitResult) -> float:
     """The gap of the model a refit answers (the refit's when kept, else its start's), fresh seeds."""
     return float(fit.gap_after if fit.accepted else fit.gap_before)
 
