@@ -412,6 +412,9 @@ def test_staircase_cause_read_off_the_samples_is_named_when_the_base_model_flies
     assert any(m.startswith("sample_hold read off the samples") for m in msgs)
     assert "read off the samples" in iterate.format_flow(flow)
     assert flow.to_json()["from_samples"][0]["name"] == "sample_hold"
+    # the report's "before" is the base model flown without the hold (no staircase), not the search's base
+    (b,) = flow.sims_before
+    assert b is not flow.steps[0].sims_before[0] and np.mean(b.y[1:] == b.y[:-1]) < 0.2
 
 
 def test_staircase_cause_is_not_named_when_the_model_flies_no_better_with_it(monkeypatch):

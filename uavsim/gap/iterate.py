@@ -79,8 +79,10 @@ from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import (
     CANDIDATES,
     NAME_RATIO,
+    GapEvaluator,
     GapResult,
     UnflownRun,
+    base_effects,
     credited_gap,
     data_hints,
     format_table,
@@ -194,6 +196,9 @@ class FlowResult:
         Effects in ``found`` read off the measured samples (a staircase's cause:
         :func:`uavsim.gap.workflow.read_off_samples`), each ``{"name", <param>,
         "gap_without", "gap_with"}``: the refitted base model's gap without and with it.
+    sims_before : list of SimRun
+        Per run, the base model's simulation (seed 0) without the effects read off the samples (the
+        first search's ``sims_before`` when none was read): the report's "before".
     seconds : float
         Wall time, identification included.
     """
@@ -213,6 +218,7 @@ class FlowResult:
     session: Session | None = field(default=None, repr=False)
     by_level: list[str] = field(default_factory=list)
     from_samples: list[dict] = field(default_factory=list)
+    sims_before: list = field(default_factory=list, repr=False)
 
     @property
     def final(self) -> GapResult:
@@ -517,7 +523,7 @@ def analyse(
         )
     found: list[EffectSpec] = []
     from_samples: list[dict] = []
-    gap_without = None
+    gap_without, sims_without = None, []
     if source == "identified" and refit:
         starts = class_starts(ident, model) if screen else None
         fit = refit_base(live, model, seed=seed, nthread=nthread, log=log, starts=starts)
@@ -529,6 +535,9 @@ def analyse(
             with_it = dataclasses.replace(live, effects=list(live.effects) + shown)
             fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts)
             if _fit_gap(fit_s) < _fit_gap(fit):
+                # the report's "before" is the base model without the effect, as the gap before is
+                without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001)
+                sims_without = without.sims([("none", 0.0)])[0]
                 gap_without, fit = _fit_gap(fit), fit_s
                 ident["refit"] = fit.to_json()
                 found += shown
@@ -588,6 +597,7 @@ def analyse(
             log(f"run {cur.runs[i].spec.file} dropped: {exc}")
             dropped.append(f"{cur.runs[i].spec.file} (the base model cannot fly it)")
             cur = dataclasses.replace(cur, runs=[r for k, r in enumerate(cur.runs) if k != i])
+            sims_without = [r for k, r in enumerate(sims_without) if k != i]
             live = cur
             live_runs(cur)  # a relay run must be left
             continue
@@ -619,7 +629,7 @@ def analyse(
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
                       by_level=[by_level.name] if by_level is not None else [],
-                      from_samples=from_samples)  # fmt: skip
+                      from_samples=from_samples, sims_before=sims_without or steps[0].sims_before)  # fmt: skip
 
 
 def _fit_gap(fit: RefitResult) -> float:

@@ -33,7 +33,7 @@ __all__ = ["write_flow_report"]
 
 def _overlays(flow: FlowResult, folder: Path, plt) -> list[Path]:
     session, final = flow.session, flow.final
-    before = flow.steps[0].sims_before
+    before = flow.sims_before or flow.steps[0].sims_before
     label = " + ".join(e.name for e in flow.found) or "no effect"
     out = []
     for i, run in enumerate(session.runs):
