@@ -74,7 +74,7 @@ from uavsim.formats.session import (
     write_session,
 )
 from uavsim.gap.features import run_features
-from uavsim.gap.refit import RefitResult, refit_base
+from uavsim.gap.refit import refit_base
 from uavsim.gap.residual import residual_character
 from uavsim.gap.workflow import (
     CANDIDATES,
@@ -534,22 +534,22 @@ def analyse(
             # to the vehicle's lumped model, where a gap search from the model without it drifts off the cause
             with_it = dataclasses.replace(live, effects=list(live.effects) + shown)
             fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts)
-            if _fit_gap(fit_s) < _fit_gap(fit):
+            if fit_s.gap < fit.gap:
                 # the report's "before" is the base model without the effect, as the gap before is
                 without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001)
                 sims_without = without.sims([("none", 0.0)])[0]
-                gap_without, fit = _fit_gap(fit), fit_s
+                gap_without, fit = fit.gap, fit_s
                 ident["refit"] = fit.to_json()
                 found += shown
                 live = with_it
                 for e in shown:
                     log(f"{e.name} read off the samples ({_params_text(e)}): the refit with it flies the runs at "
-                        f"gap {_fit_gap(fit):.3f}, without it at {gap_without:.3f}")  # fmt: skip
-                from_samples = [{"name": e.name, **e.params, "gap_without": gap_without, "gap_with": _fit_gap(fit)}
+                        f"gap {fit.gap:.3f}, without it at {gap_without:.3f}")  # fmt: skip
+                from_samples = [{"name": e.name, **e.params, "gap_without": gap_without, "gap_with": fit.gap}
                                 for e in shown]  # fmt: skip
             else:
                 log(f"{', '.join(e.name for e in shown)} shown by the samples but not named: the refit with it "
-                    f"flies the runs at gap {_fit_gap(fit_s):.3f}, without it at {_fit_gap(fit):.3f}")  # fmt: skip
+                    f"flies the runs at gap {fit_s.gap:.3f}, without it at {fit.gap:.3f}")  # fmt: skip
         model = fit.model
     steps: list[GapResult] = []
     cur, cur_model = live, model
@@ -632,13 +632,8 @@ def analyse(
                       from_samples=from_samples, sims_before=sims_without or steps[0].sims_before)  # fmt: skip
 
 
-def _fit_gap(fit: RefitResult) -> float:
-    """The gap of the model a refit answers (the refit's when kept, else its start's), fresh seeds."""
-    return float(fit.gap_after if fit.accepted else fit.gap_before)
-
-
 def _params_text(e: EffectSpec) -> str:
-    return ", ".join(f"{k} {v:.4g}" for k, v in e.params.items())
+    return ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
 
 
 def format_flow(flow: FlowResult) -> str:
@@ -657,7 +652,7 @@ def format_flow(flow: FlowResult) -> str:
         lines.append(
             "answer: named "
             + " + ".join(
-                f"{e.name} (" + ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
+                f"{e.name} (" + _params_text(e)
                 + ("; from its level, which the gap cannot show" if e.name in flow.by_level else "")
                 + ("; read off the samples" if e.name in {d["name"] for d in flow.from_samples} else "") + ")"
                 for e in flow.found

@@ -111,6 +111,11 @@ class RefitResult:
     seconds: float
     screened: dict | None = None
 
+    @property
+    def gap(self) -> float:
+        """Gap of ``model``, the model the refit answers: the refit's when kept, else the start's (fresh seeds)."""
+        return float(self.gap_after if self.accepted else self.gap_before)
+
     def to_json(self) -> dict:
         return {
             "model": dataclasses.asdict(self.model),
