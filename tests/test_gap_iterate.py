@@ -429,3 +429,33 @@ def test_staircase_cause_is_not_named_when_the_model_flies_no_better_with_it(mon
     monkeypatch.setattr(iterate, "refit_base", lambda s, m, **kw: seen.append(s.effects) or _no_refit(s, m))
     flow = iterate.analyse(_identified(monkeypatch, 0.0))
     assert seen == [[]] and flow.from_samples == [] and calls[0]["effects"] == []
+
+
+def test_saturation_read_off_the_relay_amplitudes_is_named_when_the_base_model_flies_better_with_it(monkeypatch):
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 6.0, ("saturation",): 3.0}))
+    flown = []
+    sat = EffectSpec("saturation", {"limit": 1.5})
+    monkeypatch.setattr(iterate, "read_off_relays", lambda s, meas, sims: flown.append(len(sims)) or [sat])
+    msgs = []
+    flow = iterate.analyse(_identified(monkeypatch, 0.0), log=msgs.append)
+    # the base model flown on the session's noise seeds, then the refit with the read limit in the loop
+    assert flown == [iterate.SEEDS]
+    assert flow.answer == "named" and flow.to_json()["found"] == [{"name": "saturation", "limit": 1.5}]
+    assert flow.from_samples == [{"name": "saturation", "limit": 1.5, "evidence": "relay amplitudes",
+                                  "gap_without": 6.0, "gap_with": 3.0}]  # fmt: skip
+    assert flow.gap_before == 6.0 and calls[0]["effects"] == ["saturation"]
+    assert "saturation" not in calls[0]["candidates"]
+    assert any(m.startswith("saturation read off the relay runs' amplitudes (limit=1.5)") for m in msgs)
+    assert "read off the relay runs' amplitudes" in iterate.format_flow(flow)
+    # not named when the refit flies no better with it
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 3.0, ("saturation",): 3.2}))
+    flow = iterate.analyse(_identified(monkeypatch, 0.0))
+    assert flow.answer == "none" and flow.found == [] and calls[0]["effects"] == []
+    # a staircase read off the samples is not read again off the relays
+    flown.clear()
+    _script(monkeypatch, [("none", 3.0, 3.0)])
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 20.0, ("sample_hold",): 3.0}))
+    flow = iterate.analyse(_identified(monkeypatch, 0.0, staircase=True))
+    assert flown == [] and [d["evidence"] for d in flow.from_samples] == ["staircase"]

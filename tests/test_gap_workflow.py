@@ -335,3 +335,23 @@ def test_staircase_cause_is_read_with_its_parameter_only_where_the_samples_show_
     y = np.round(np.repeat(y[::5], 5)[: t.size] / 0.05) * 0.05
     both = SimpleNamespace(runs=[SimpleNamespace(data=SimpleNamespace(y=y))])
     assert read_off_samples(both, 200.0) == []
+
+
+def test_saturation_is_read_off_two_relay_runs_whose_cycles_grow_less_than_their_amplitude():
+    from uavsim.gap.workflow import SEEDS, GapEvaluator, base_effects, read_off_relays
+
+    def read(effect, loop, seed):
+        s, truth = hidden_session(seed, effect=effect, loop=loop)
+        ev = GapEvaluator(s, s.model, base_effects(s), 0, 1, 0.001)
+        flown = ev.sims([("none", 0.0)], seeds=SEEDS)
+        return read_off_relays(s, ev.meas, [ev.features(f) for f in flown]), truth
+
+    # limits of 0.58 and 0.50 of the larger run's h: the larger cycle grows as the limit does
+    for loop, seed in (("altitude", 2), ("pitch", 3)):
+        (sat,), truth = read("saturation", loop, seed)
+        assert sat.name == "saturation" and sat.params["limit"] == pytest.approx(truth.params["limit"], rel=0.1)
+    # a linear loop, with or without a gain, and effects whose larger cycle grows more than h does
+    # (a dead zone of 0.44 h) or that move the period too (a rate limit) read nothing
+    for effect, loop, seed in (("none", "roll", 1), ("none", "altitude", 2), ("gain", "pitch", 3),
+                               ("dead_zone", "roll", 1), ("rate_limit", "altitude", 5)):  # fmt: skip
+        assert read(effect, loop, seed)[0] == []

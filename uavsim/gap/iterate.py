@@ -38,7 +38,10 @@
    frames: :func:`uavsim.gap.workflow.read_off_samples`) names that cause with the
    parameter read off the samples, when the base model refitted with it in the loop
    flies the runs better than the one refitted without; that refit is the base model
-   of the search, and the gap before is the one without.
+   of the search, and the gap before is the one without. Without a staircase, two
+   relay runs of one ``beta`` whose cycles grow less than their ``h`` does, beyond what
+   the base model flies, read a saturation with its limit the same way
+   (:func:`uavsim.gap.workflow.read_off_relays`).
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
    clean sessions of the testbed vehicle, development seeds), ``absorbed``
@@ -76,9 +79,11 @@ from uavsim.formats.session import (
 from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
 from uavsim.gap.residual import residual_character
+from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import (
     CANDIDATES,
     NAME_RATIO,
+    SEEDS,
     GapEvaluator,
     GapResult,
     UnflownRun,
@@ -86,6 +91,7 @@ from uavsim.gap.workflow import (
     credited_gap,
     data_hints,
     format_table,
+    read_off_relays,
     read_off_samples,
     run_gap,
 )
@@ -160,6 +166,8 @@ ABSORB_REFIT_SHARE = 0.022
 #: of other effects' (a low-pass: 4.1e-3; docs/results/gap-workflow.md). Set on the testbed vehicle: an
 #: aircraft with another IMU chain has its own clean level
 NOISE_STD: dict[str, float | None] = {"altitude": None, "attitude": 2.0e-4}
+#: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
+READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
 
 
 @dataclass
@@ -193,9 +201,11 @@ class FlowResult:
         Effects in ``found`` named from the measured level rather than the gap
         (:func:`noise_by_level`).
     from_samples : list of dict
-        Effects in ``found`` read off the measured samples (a staircase's cause:
-        :func:`uavsim.gap.workflow.read_off_samples`), each ``{"name", <param>,
-        "gap_without", "gap_with"}``: the refitted base model's gap without and with it.
+        Effects in ``found`` read off the measured runs, each ``{"name", <param>, "evidence",
+        "gap_without", "gap_with"}``: ``evidence`` is ``staircase`` (a staircase's cause,
+        :func:`uavsim.gap.workflow.read_off_samples`) or ``relay amplitudes`` (a saturation,
+        :func:`uavsim.gap.workflow.read_off_relays`); the gaps are the refitted base model's
+        without and with it.
     sims_before : list of SimRun
         Per run, the base model's simulation (seed 0) without the effects read off the samples (the
         first search's ``sims_before`` when none was read): the report's "before".
@@ -528,27 +538,33 @@ def analyse(
         starts = class_starts(ident, model) if screen else None
         fit = refit_base(live, model, seed=seed, nthread=nthread, log=log, starts=starts)
         ident["refit"] = fit.to_json()
-        shown = read_off_samples(live, live.control_rate_hz)
+        shown, evidence = read_off_samples(live, live.control_rate_hz), "staircase"
+        without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001)
+        flown: list[list[SimRun]] = []
+        if not shown:
+            flown = without.sims([("none", 0.0)], seeds=SEEDS)
+            shown, evidence = read_off_relays(live, without.meas, [without.features(s) for s in flown]), "relay amplitudes"
         if shown:
-            # the identified model was fitted to the staircase: refitted with its cause in the loop, it moves
-            # to the vehicle's lumped model, where a gap search from the model without it drifts off the cause
+            # the identified model was fitted to the effect's doing (a staircase, a clipped cycle): refitted with
+            # its cause in the loop, it moves to the vehicle's lumped model, where a gap search from the model
+            # without it drifts off the cause or finds nothing the refit has not already bent into the model
             with_it = dataclasses.replace(live, effects=list(live.effects) + shown)
             fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts)
+            what = READ_FROM[evidence]
             if fit_s.gap < fit.gap:
                 # the report's "before" is the base model without the effect, as the gap before is
-                without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001)
-                sims_without = without.sims([("none", 0.0)])[0]
+                sims_without = (flown or without.sims([("none", 0.0)]))[0]
                 gap_without, fit = fit.gap, fit_s
                 ident["refit"] = fit.to_json()
                 found += shown
                 live = with_it
                 for e in shown:
-                    log(f"{e.name} read off the samples ({_params_text(e)}): the refit with it flies the runs at "
+                    log(f"{e.name} read off {what} ({_params_text(e)}): the refit with it flies the runs at "
                         f"gap {fit.gap:.3f}, without it at {gap_without:.3f}")  # fmt: skip
-                from_samples = [{"name": e.name, **e.params, "gap_without": gap_without, "gap_with": fit.gap}
-                                for e in shown]  # fmt: skip
+                from_samples = [{"name": e.name, **e.params, "evidence": evidence, "gap_without": gap_without,
+                                 "gap_with": fit.gap} for e in shown]  # fmt: skip
             else:
-                log(f"{', '.join(e.name for e in shown)} shown by the samples but not named: the refit with it "
+                log(f"{', '.join(e.name for e in shown)} shown by {what} but not named: the refit with it "
                     f"flies the runs at gap {fit_s.gap:.3f}, without it at {fit.gap:.3f}")  # fmt: skip
         model = fit.model
     steps: list[GapResult] = []
@@ -649,12 +665,13 @@ def format_flow(flow: FlowResult) -> str:
     if flow.dropped:
         lines.append("dropped runs (no analysable cycle): " + ", ".join(flow.dropped))
     if flow.answer == "named":
+        read = {d["name"]: READ_FROM[d["evidence"]] for d in flow.from_samples}
         lines.append(
             "answer: named "
             + " + ".join(
                 f"{e.name} (" + _params_text(e)
                 + ("; from its level, which the gap cannot show" if e.name in flow.by_level else "")
-                + ("; read off the samples" if e.name in {d["name"] for d in flow.from_samples} else "") + ")"
+                + (f"; read off {read[e.name]}" if e.name in read else "") + ")"
                 for e in flow.found
             )
         )

@@ -66,7 +66,7 @@ from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
-           "credited_gap", "read_model_file", "candidate_grid"]
+           "credited_gap", "read_model_file", "candidate_grid", "read_off_relays"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -267,6 +267,70 @@ def read_off_samples(session: Session, rate_hz: float) -> list[EffectSpec]:
         return [EffectSpec("quantization", {"step": float(hints["quantization"])})]
     if out == {"quantization"} and hints.get("sample_hold", 0.0) > 0:
         return [EffectSpec("sample_hold", {"rate_hz": float(hints["sample_hold"])})]
+    return []
+
+
+#: a relay run's cycle amplitude over that of a run of the same beta and a smaller ``h``, measured
+#: over simulated on the (linear) base model, at or below which the loop's gain falls with the
+#: relay's amplitude: a saturation between the two ``h``. Set on the testbed sessions of development
+#: seeds 0-39 and the spent held-out sets 30000-30063, 40000-40063 and 50000-50063: clean sessions
+#: 0.86-1.21, saturations 0.41-0.86 (docs/results/gap-workflow.md)
+SAT_AMP_RATIO = 0.8
+#: the two runs' period ratio (measured over simulated) within this factor either way. A relay's
+#: square wave clipped is a square wave of the limit's amplitude, so a saturation moves the cycle's
+#: amplitude, not its period (the same sessions: saturations 0.91-1.13); a bias or a noise-driven
+#: orbit moves both (a bias with a ratio of 0.72: a period ratio of 0.76)
+SAT_PERIOD_BAND = 1.15
+#: smallest ratio of the two runs' relay amplitudes ``h`` for the comparison
+SAT_H_RATIO = 1.5
+
+
+def read_off_relays(session: Session, meas: list[dict | None],
+                    sims: list[list[dict | None]]) -> list[EffectSpec]:
+    """A saturation with its limit, where two relay runs show the loop's gain falling with amplitude.
+
+    A relay's output is a square wave of amplitude ``h``; clipped at ``limit < h`` it is a
+    square wave of amplitude ``limit``. A linear loop's relay cycle grows in proportion to ``h``
+    (the base model, flown with the runs' own relays, says by how much under their noise
+    settings). Of two runs of one ``beta`` with ``h_small < h_large``, let ``r`` be the larger
+    run's cycle amplitude over the smaller's, measured over simulated. With a saturation
+    between the two ``h``, the larger cycle grows only as far as the limit: ``limit = r *
+    h_large``, read when ``r`` is at most :data:`SAT_AMP_RATIO` and the period ratio stays
+    within :data:`SAT_PERIOD_BAND`.
+
+    Parameters
+    ----------
+    session : Session
+    meas : list of dict or None, length R
+        The measured runs' features (:func:`uavsim.gap.features.run_features`).
+    sims : list of list of dict or None
+        Per noise seed, the base model's simulated runs' features, length R each.
+
+    Returns
+    -------
+    list of EffectSpec
+        ``[saturation]`` or empty.
+    """
+    runs = [i for i, r in enumerate(session.runs) if r.spec.kind != STEP_RUN and r.spec.h
+            and meas[i] is not None and all(f[i] is not None for f in sims)]  # fmt: skip
+    best: tuple[float, int, int] | None = None
+    for i in runs:
+        for j in runs:
+            a, b = session.runs[i].spec, session.runs[j].spec
+            if (a.kind, a.beta) == (b.kind, b.beta) and b.h >= SAT_H_RATIO * a.h and (best is None or b.h / a.h > best[0]):
+                best = (b.h / a.h, i, j)
+    if best is None or not sims:
+        return []
+    _, i, j = best
+
+    def ratio(feature: str) -> float:
+        sim = np.mean([f[j][feature] - f[i][feature] for f in sims])
+        return math.exp(meas[j][feature] - meas[i][feature] - sim)
+
+    r, p = ratio("amplitude"), ratio("period")
+    hs, hl = float(session.runs[i].spec.h), float(session.runs[j].spec.h)
+    if r <= SAT_AMP_RATIO and r * hl > hs and abs(math.log(p)) <= math.log(SAT_PERIOD_BAND):
+        return [EffectSpec("saturation", {"limit": float(r * hl)})]
     return []
 
 

@@ -85,6 +85,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
     j = flow.to_json()
     rec.update({"answer": flow.answer, "found": j["found"], "by_level": j["by_level"],
                 "from_samples": [d["name"] for d in j["from_samples"]],
+                "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
@@ -115,6 +116,8 @@ def redecide(r: dict) -> dict:
 
 KINDS = ("none", "single", "pair", "outside")
 ANSWERS = ("named", "absorbed", "none", "unexplained", "error")
+#: the table's note on an effect read off the runs, by its evidence (``FlowResult.from_samples``)
+READ_LABEL = {"staircase": "samples", "relay amplitudes": "relay amplitudes"}
 
 
 def summary(records: list[dict]) -> str:
@@ -129,7 +132,8 @@ def summary(records: list[dict]) -> str:
         for r in rs:
             found = "; ".join(f["name"] + " " + ", ".join(f"{k} {v:.4g}" for k, v in f.items() if k != "name")
                               + (" (from its level)" if f["name"] in (r.get("by_level") or ()) else "")
-                              + (" (off the samples)" if f["name"] in (r.get("from_samples") or ()) else "")
+                              + (f" (off the {READ_LABEL[(r.get('read_from') or {}).get(f['name'], 'staircase')]})"
+                                 if f["name"] in (r.get("from_samples") or ()) else "")
                               for f in r.get("found") or [])  # fmt: skip
             if r["answer"] == "absorbed":
                 found = f"tau +{r['absorbed']['moved_s'] * 1e3:.1f} ms"
