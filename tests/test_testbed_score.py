@@ -44,29 +44,27 @@ def test_summary_of_a_record_without_the_field():
     assert "| tb_9 | none | roll | none | none |  | 3.00 -> 3.00 | yes | 50 |" in score.summary([r])
 
 
-def test_record_marks_what_was_read_off_the_samples(tmp_path, monkeypatch):
-    folder = _truth(tmp_path, effects=({"name": "quantization", "params": {"step": 0.005}},))
+def _record_of_a_read(tmp_path, monkeypatch, truth: dict, found: dict, evidence: str) -> dict:
+    """The testbed record of a flow that names ``found`` read off the runs (``evidence``); the truth hides ``truth``."""
+    folder = _truth(tmp_path, effects=(truth,))
     flow = _Flow()
-    flow.to_json = lambda: {"found": [{"name": "quantization", "step": 0.005}], "by_level": [],
-                            "from_samples": [{"name": "quantization", "step": 0.005, "evidence": "staircase",
-                                              "gap_without": 20.0, "gap_with": 4.0}], "steps": [],
-                            "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
+    flow.to_json = lambda: {"found": [found], "by_level": [],
+                            "from_samples": [{**found, "evidence": evidence, "gap_without": 20.0, "gap_with": 4.0}],
+                            "steps": [], "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
     monkeypatch.setattr(score, "read_session", lambda f: None)
     monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
-    r = score.one(folder, None, "identified", 0)
+    return score.one(folder, None, "identified", 0)
+
+
+def test_record_marks_what_was_read_off_the_samples(tmp_path, monkeypatch):
+    r = _record_of_a_read(tmp_path, monkeypatch, {"name": "quantization", "params": {"step": 0.005}},
+                          {"name": "quantization", "step": 0.005}, "staircase")  # fmt: skip
     assert r["from_samples"] == ["quantization"] and r["ok"] and r["param_rel_err"] < 1e-12
     assert "quantization step 0.005 (off the samples)" in score.summary([r])
 
 
 def test_record_marks_a_saturation_read_off_the_relay_amplitudes(tmp_path, monkeypatch):
-    folder = _truth(tmp_path, effects=({"name": "saturation", "params": {"limit": 2.0}},))
-    flow = _Flow()
-    flow.to_json = lambda: {"found": [{"name": "saturation", "limit": 2.2}], "by_level": [],
-                            "from_samples": [{"name": "saturation", "limit": 2.2, "evidence": "relay amplitudes",
-                                              "gap_without": 6.0, "gap_with": 3.0}], "steps": [],
-                            "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
-    monkeypatch.setattr(score, "read_session", lambda f: None)
-    monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
-    r = score.one(folder, None, "identified", 0)
+    r = _record_of_a_read(tmp_path, monkeypatch, {"name": "saturation", "params": {"limit": 2.0}},
+                          {"name": "saturation", "limit": 2.2}, "relay amplitudes")  # fmt: skip
     assert r["read_from"] == {"saturation": "relay amplitudes"} and abs(r["param_rel_err"] - 0.1) < 1e-9
     assert "saturation limit 2.2 (off the relay amplitudes)" in score.summary([r])
