@@ -213,6 +213,21 @@ def test_out_that_is_a_file_is_refused(tmp_path, capsys):
     assert "not a folder" in capsys.readouterr().err
 
 
+def test_a_flight_that_crashes_before_its_first_run_leaves_its_seed_without_a_session(tmp_path, monkeypatch, capsys):
+    from uavsim.testbed import sessions
+
+    def crash(seed, kinds):
+        raise sessions.NoSession(f"testbed seed {seed}: the flight crashed before any run")
+
+    monkeypatch.setattr(sessions, "testbed_session", crash)
+    assert cli(["testbed", "sessions", "--seeds", "3:5", "--out", str(tmp_path / "set"), "--json"]) == 0
+    index = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    # the set goes on past the seed, says so and writes nothing for it: no seed is redrawn
+    assert index["sessions"] == [] and sorted(index["no_session"]) == ["tb_00003", "tb_00004"]
+    assert "crashed before any run" in index["no_session"]["tb_00003"]
+    assert sorted(p.name for p in (tmp_path / "set").iterdir()) == ["recipe.json"]
+
+
 def test_parsers():
     assert parse_seeds("3") == range(3, 4) and parse_seeds("2:5") == range(2, 5)
     assert parse_kinds("none,single,none") == ("none", "single")

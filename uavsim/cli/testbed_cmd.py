@@ -65,16 +65,34 @@ def register(subparsers) -> None:
 
 
 def _one(args: tuple[int, str, tuple[str, ...]]) -> dict:
-    from uavsim.testbed.sessions import session_name, testbed_session, write_testbed
+    from uavsim.testbed.sessions import (
+        NoSession,
+        plan_session,
+        session_name,
+        testbed_session,
+        write_testbed,
+    )
 
     seed, out, kinds = args
     t0 = time.perf_counter()
-    session, truth = testbed_session(seed, kinds)
+    try:
+        session, truth = testbed_session(seed, kinds)
+    except NoSession as exc:
+        # no log to analyse: said and left out of the set, not redrawn (the seed keeps its place)
+        p = plan_session(seed, kinds)
+        return {"name": session_name(seed), "seed": seed, "kind": p.kind, "loop": p.loop,
+                "effects": "+".join(e.name for e in p.effects) or "none", "runs": 0, "not_oscillating": 0, "crashed": True,
+                "seconds": round(time.perf_counter() - t0, 1), "no_session": str(exc)}  # fmt: skip
     write_testbed(session, truth, Path(out) / session_name(seed))
     return {"name": truth.name, "seed": seed, "kind": truth.kind, "loop": truth.loop,
             "effects": "+".join(truth.effect_names), "runs": len(session.runs),
             "not_oscillating": sum(1 for r in truth.runs if r.get("oscillates") is False),
             "crashed": any(r["crashed"] for r in truth.runs), "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def _progress(i: int, n: int, r: dict) -> str:
+    what = f"no session: {r['no_session']}" if r.get("no_session") else f"{r['kind']} {r['loop']}: {r['effects']}"
+    return f"[{i + 1}/{n}] {r['name']} {what} ({r['seconds']} s)"
 
 
 def sessions(args: argparse.Namespace) -> int:
@@ -93,18 +111,18 @@ def sessions(args: argparse.Namespace) -> int:
     if args.jobs == 1:
         for i, w in enumerate(work):
             rows.append(_one(w))
-            eprint(f"[{i + 1}/{len(work)}] {rows[-1]['name']} {rows[-1]['kind']} {rows[-1]['loop']}: "
-                   f"{rows[-1]['effects']} ({rows[-1]['seconds']} s)")
+            eprint(_progress(i, len(work), rows[-1]))
     else:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(args.jobs) as ex:
             for i, r in enumerate(ex.map(_one, work)):
                 rows.append(r)
-                eprint(f"[{i + 1}/{len(work)}] {r['name']} {r['kind']} {r['loop']}: {r['effects']} ({r['seconds']} s)")
+                eprint(_progress(i, len(work), r))
     recipe = {"recipe": RECIPE, "seeds": [seeds.start, seeds.stop], "kinds": list(kinds),
               "dev_seeds": [DEV_SEEDS.start, DEV_SEEDS.stop], "heldout_seeds": [HELDOUT_SEEDS.start, HELDOUT_SEEDS.stop],
-              "sessions": [r["name"] for r in rows]}  # fmt: skip
+              "sessions": [r["name"] for r in rows if not r.get("no_session")],
+              "no_session": {r["name"]: r["no_session"] for r in rows if r.get("no_session")}}  # fmt: skip
     (out / "recipe.json").write_text(json.dumps(recipe, indent=1) + "\n")
     if args.json:
         print_json({**recipe, "index": rows})

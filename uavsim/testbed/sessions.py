@@ -30,7 +30,8 @@ right, docs/results/gap-testbed.md).
 60% of the ESCs' downward headroom. The session has no ``[model]`` (the
 user's case: the base model is identified from the relay run later) and no
 ``[[effects]]``. Nothing is redrawn: a run that stops oscillating, diverges
-or crashes is kept as the log would hold it and marked in the truth.
+or crashes is kept as the log would hold it and marked in the truth; a flight that
+crashes before its first run leaves no log, so its seed has no session (:class:`NoSession`).
 
 Kinds: ``single`` (one vocabulary effect), ``pair`` (two distinct vocabulary
 effects), ``outside`` (one effect of another shape: asymmetric saturation,
@@ -70,7 +71,7 @@ from uavsim.testbed.hidden import OUTSIDE, VOCABULARY, HiddenEffect, Scales, dra
 from uavsim.testbed.vehicle import TESTBED_LOOPS, TestbedVehicle, draw_vehicle, lumped_equivalent
 from uavsim.tuning.rule import TuningRule
 
-__all__ = ["RECIPE", "STEP_DERIVATIVE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "HELDOUT_SEEDS", "SessionPlan", "TestbedTruth",
+__all__ = ["RECIPE", "STEP_DERIVATIVE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "HELDOUT_SEEDS", "NoSession", "SessionPlan", "TestbedTruth",
            "plan_session", "testbed_session", "write_testbed", "read_truth", "truth_json", "parse_seeds", "parse_kinds",
            "session_name", "hover_noise_settings", "hold_controller", "relay_amplitude"]
 
@@ -97,6 +98,10 @@ STEP_DERIVATIVE = "error"
 
 def session_name(seed: int) -> str:
     return f"tb_{seed:05d}"
+
+
+class NoSession(UserError):
+    """A seed whose flight left no log (it crashed before its first run): there is no session to write."""
 
 
 @dataclass(kw_only=True)
@@ -331,8 +336,8 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
             runs.append(Run(spec, RunData(rec.t, rec.r, rec.y, rec.u)))
         if crashed:
             break
-    if not runs:  # pragma: no cover - the first run lasts at least two samples
-        raise UserError(f"testbed seed {seed}: the flight crashed before any run")
+    if not runs:
+        raise NoSession(f"testbed seed {seed}: the flight crashed before any run")
     session = Session(loop=loop, control_rate_hz=RATE_HZ, runs=runs, model=None)
     noise = {"sigma": est.sigma, "T_n": est.T_n, "a_n": est.a_n, "cutoff_hz": est.cutoff_hz,
              "tau_obs_b073": settings[-0.73][0], "a_n_b073": settings[-0.73][1],
