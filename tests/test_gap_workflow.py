@@ -355,3 +355,22 @@ def test_saturation_is_read_off_two_relay_runs_whose_cycles_grow_less_than_their
     for effect, loop, seed in (("none", "roll", 1), ("none", "altitude", 2), ("gain", "pitch", 3),
                                ("dead_zone", "roll", 1), ("rate_limit", "altitude", 5)):  # fmt: skip
         assert read(effect, loop, seed)[0] == []
+
+
+def test_saturation_read_needs_the_clipped_cycle_to_stay_symmetric():
+    from types import SimpleNamespace
+
+    from uavsim.gap.workflow import SAT_DUTY_SHIFT, read_off_relays
+
+    spec = lambda h: SimpleNamespace(kind="np-mrft", beta=-0.73, h=h)  # noqa: E731
+    session = SimpleNamespace(runs=[SimpleNamespace(spec=spec(1.0)), SimpleNamespace(spec=spec(3.0))])
+    feats = lambda amp3, duty3: [{"amplitude": 0.0, "period": 0.0, "duty": 0.5},  # noqa: E731
+                                 {"amplitude": math.log(amp3), "period": 0.0, "duty": duty3}]
+    sims = [feats(3.0, 0.5)] * 3
+    # the larger cycle grew 1.8 times where the model's grew 3 times: a limit of 0.6 * 3 h
+    (sat,) = read_off_relays(session, feats(1.8, 0.5), sims)
+    assert sat.params["limit"] == pytest.approx(1.8)
+    # the same growth with the duty moved: limits unequal both ways, not the vocabulary's saturation
+    assert read_off_relays(session, feats(1.8, 0.5 + 2 * SAT_DUTY_SHIFT), sims) == []
+    # a cycle that grew as the model's (or more) reads nothing
+    assert read_off_relays(session, feats(2.9, 0.5), sims) == []

@@ -274,13 +274,17 @@ def read_off_samples(session: Session, rate_hz: float) -> list[EffectSpec]:
 #: over simulated on the (linear) base model, at or below which the loop's gain falls with the
 #: relay's amplitude: a saturation between the two ``h``. Set on the testbed sessions of development
 #: seeds 0-39 and the spent held-out sets 30000-30063, 40000-40063 and 50000-50063: clean sessions
-#: 0.86-1.21, saturations 0.41-0.86 (docs/results/gap-workflow.md)
+#: 0.86-1.21, saturation singles 0.43-0.86 (docs/results/gap-workflow.md)
 SAT_AMP_RATIO = 0.8
 #: the two runs' period ratio (measured over simulated) within this factor either way. A relay's
 #: square wave clipped is a square wave of the limit's amplitude, so a saturation moves the cycle's
-#: amplitude, not its period (the same sessions: saturations 0.91-1.13); a bias or a noise-driven
-#: orbit moves both (a bias with a ratio of 0.72: a period ratio of 0.76)
+#: amplitude, not its period (the same sessions: saturation singles 0.96-1.09, with a second effect
+#: 0.91-1.13); a bias or a noise-driven orbit moves both (a bias with a ratio of 0.72: 0.76)
 SAT_PERIOD_BAND = 1.15
+#: and the larger run's relay duty within this of the smaller's (measured less simulated): limits
+#: alike both ways keep the clipped square wave symmetric, where unequal ones bias it and move the
+#: duty (the same sessions: saturation singles at most 0.025, asymmetric saturations 0.060-0.155)
+SAT_DUTY_SHIFT = 0.04
 #: smallest ratio of the two runs' relay amplitudes ``h`` for the comparison
 SAT_H_RATIO = 1.5
 
@@ -295,8 +299,9 @@ def read_off_relays(session: Session, meas: list[dict | None],
     settings). Of two runs of one ``beta`` with ``h_small < h_large``, let ``r`` be the larger
     run's cycle amplitude over the smaller's, measured over simulated. With a saturation
     between the two ``h``, the larger cycle grows only as far as the limit: ``limit = r *
-    h_large``, read when ``r`` is at most :data:`SAT_AMP_RATIO` and the period ratio stays
-    within :data:`SAT_PERIOD_BAND`.
+    h_large``, read when ``r`` is at most :data:`SAT_AMP_RATIO`, the period ratio stays
+    within :data:`SAT_PERIOD_BAND` and the relay's duty within :data:`SAT_DUTY_SHIFT` (a
+    limit unequal both ways, which the vocabulary's saturation is not, biases the clipped wave).
 
     Parameters
     ----------
@@ -328,8 +333,10 @@ def read_off_relays(session: Session, meas: list[dict | None],
         return math.exp(meas[j][feature] - meas[i][feature] - sim)
 
     r, p = ratio("amplitude"), ratio("period")
+    duty = meas[j]["duty"] - meas[i]["duty"] - np.mean([f[j]["duty"] - f[i]["duty"] for f in sims])
     hs, hl = float(session.runs[i].spec.h), float(session.runs[j].spec.h)
-    if r <= SAT_AMP_RATIO and r * hl > hs and abs(math.log(p)) <= math.log(SAT_PERIOD_BAND):
+    if (r <= SAT_AMP_RATIO and r * hl > hs and abs(math.log(p)) <= math.log(SAT_PERIOD_BAND)
+            and abs(duty) <= SAT_DUTY_SHIFT):
         return [EffectSpec("saturation", {"limit": float(r * hl)})]
     return []
 
