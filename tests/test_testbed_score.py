@@ -67,4 +67,4 @@ def test_record_marks_a_saturation_read_off_the_relay_amplitudes(tmp_path, monke
     r = _record_of_a_read(tmp_path, monkeypatch, {"name": "saturation", "params": {"limit": 2.0}},
                           {"name": "saturation", "limit": 2.2}, "relay amplitudes")  # fmt: skip
     assert r["read_from"] == {"saturation": "relay amplitudes"} and abs(r["param_rel_err"] - 0.1) < 1e-9
-    assert "saturation limit 2.2 (off the relay amplitudes)" in score.summary([r])
+    assert "saturation limit 2.2 (off the relay runs' amplitudes)" in score.summary([r])

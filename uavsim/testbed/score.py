@@ -31,7 +31,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
-from uavsim.gap.iterate import absorbed_by, analyse, decide
+from uavsim.gap.iterate import READ_FROM, absorbed_by, analyse, decide
 
 CONDITIONS = ("true", "identified")
 
@@ -116,8 +116,6 @@ def redecide(r: dict) -> dict:
 
 KINDS = ("none", "single", "pair", "outside")
 ANSWERS = ("named", "absorbed", "none", "unexplained", "error")
-#: the table's note on an effect read off the runs, by its evidence (``FlowResult.from_samples``)
-READ_LABEL = {"staircase": "samples", "relay amplitudes": "relay amplitudes"}
 
 
 def summary(records: list[dict]) -> str:
@@ -132,7 +130,8 @@ def summary(records: list[dict]) -> str:
         for r in rs:
             found = "; ".join(f["name"] + " " + ", ".join(f"{k} {v:.4g}" for k, v in f.items() if k != "name")
                               + (" (from its level)" if f["name"] in (r.get("by_level") or ()) else "")
-                              + (f" (off the {READ_LABEL[(r.get('read_from') or {}).get(f['name'], 'staircase')]})"
+                              # logs written before relay reads held staircases only
+                              + (f" (off {READ_FROM[(r.get('read_from') or {}).get(f['name'], 'staircase')]})"
                                  if f["name"] in (r.get("from_samples") or ()) else "")
                               for f in r.get("found") or [])  # fmt: skip
             if r["answer"] == "absorbed":
