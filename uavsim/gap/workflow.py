@@ -318,26 +318,23 @@ def read_off_relays(session: Session, meas: list[dict | None],
     """
     runs = [i for i, r in enumerate(session.runs) if r.spec.kind != STEP_RUN and r.spec.h
             and meas[i] is not None and all(f[i] is not None for f in sims)]  # fmt: skip
-    best: tuple[float, int, int] | None = None
-    for i in runs:
-        for j in runs:
-            a, b = session.runs[i].spec, session.runs[j].spec
-            if (a.kind, a.beta) == (b.kind, b.beta) and b.h >= SAT_H_RATIO * a.h and (best is None or b.h / a.h > best[0]):
-                best = (b.h / a.h, i, j)
-    if best is None or not sims:
+    specs = [r.spec for r in session.runs]
+    pairs = [(specs[j].h / specs[i].h, i, j) for i in runs for j in runs
+             if (specs[i].kind, specs[i].beta) == (specs[j].kind, specs[j].beta)
+             and specs[j].h >= SAT_H_RATIO * specs[i].h]  # fmt: skip
+    if not pairs or not sims:
         return []
-    _, i, j = best
+    _, i, j = max(pairs, key=lambda p: p[0])  # the widest h ratio (the first of equals)
 
-    def ratio(feature: str) -> float:
-        sim = np.mean([f[j][feature] - f[i][feature] for f in sims])
-        return math.exp(meas[j][feature] - meas[i][feature] - sim)
+    def shift(feature: str) -> float:
+        """Larger run's ``feature`` less the smaller's, measured less simulated (mean over seeds)."""
+        return meas[j][feature] - meas[i][feature] - float(np.mean([f[j][feature] - f[i][feature] for f in sims]))
 
-    r, p = ratio("amplitude"), ratio("period")
-    duty = meas[j]["duty"] - meas[i]["duty"] - np.mean([f[j]["duty"] - f[i]["duty"] for f in sims])
-    hs, hl = float(session.runs[i].spec.h), float(session.runs[j].spec.h)
-    if (r <= SAT_AMP_RATIO and r * hl > hs and abs(math.log(p)) <= math.log(SAT_PERIOD_BAND)
-            and abs(duty) <= SAT_DUTY_SHIFT):
-        return [EffectSpec("saturation", {"limit": float(r * hl)})]
+    r = math.exp(shift("amplitude"))  # amplitude and period features are logs
+    limit = r * float(specs[j].h)
+    if (r <= SAT_AMP_RATIO and limit > specs[i].h and abs(shift("period")) <= math.log(SAT_PERIOD_BAND)
+            and abs(shift("duty")) <= SAT_DUTY_SHIFT):
+        return [EffectSpec("saturation", {"limit": limit})]
     return []
 
 
