@@ -350,11 +350,14 @@ def test_saturation_is_read_off_two_relay_runs_whose_cycles_grow_less_than_their
     for loop, seed in (("altitude", 2), ("pitch", 3)):
         (sat,), truth = read("saturation", loop, seed)
         assert sat.name == "saturation" and sat.params["limit"] == pytest.approx(truth.params["limit"], rel=0.1)
-    # a linear loop, with or without a gain, and effects whose larger cycle grows more than h does
-    # (a dead zone of 0.44 h) or that move the period too (a rate limit) read nothing
+    # a linear loop, with or without a gain, and an effect that moves the period too (a rate limit) read nothing
     for effect, loop, seed in (("none", "roll", 1), ("none", "altitude", 2), ("gain", "pitch", 3),
-                               ("dead_zone", "roll", 1), ("rate_limit", "altitude", 5)):  # fmt: skip
+                               ("rate_limit", "altitude", 5)):  # fmt: skip
         assert read(effect, loop, seed)[0] == []
+    # a dead zone of 0.44 h: the larger cycle grows more than h does, by as much as the square wave
+    # loses to the dead zone at each h, and the step run settles as the model's does
+    (dz,), truth = read("dead_zone", "roll", 1)
+    assert dz.name == "dead_zone" and dz.params["width"] == pytest.approx(truth.params["width"], rel=0.15)
 
 
 def test_saturation_read_needs_the_clipped_cycle_to_stay_symmetric():
@@ -376,3 +379,31 @@ def test_saturation_read_needs_the_clipped_cycle_to_stay_symmetric():
     assert read_off_relays(session, feats(1.8, 0.6), sims) == []
     # a cycle that grew as the model's (or more) reads nothing
     assert read_off_relays(session, feats(2.9, 0.5), sims) == []
+
+
+def test_dead_zone_read_needs_the_step_runs_to_settle():
+    from types import SimpleNamespace
+
+    from uavsim.gap.workflow import HUNT_SWING, read_off_relays, step_hunting
+
+    spec = lambda h: SimpleNamespace(kind="np-mrft", beta=-0.73, h=h)  # noqa: E731
+    step = SimpleNamespace(kind="step", beta=None, h=None)
+    session = SimpleNamespace(runs=[SimpleNamespace(spec=spec(1.0)), SimpleNamespace(spec=spec(3.0)),
+                                    SimpleNamespace(spec=step)])  # fmt: skip
+    k = np.arange(800)
+    settled = 1.0 - np.exp(-k / 40.0)
+    # play in the loop: a relay's square wave passes as through a dead zone, but the held command
+    # keeps the steps' PD loop swinging (testbed backlashes: 0.49-1.56 of the step beyond the model)
+    hunting = settled + 0.3 * np.sin(2 * np.pi * k / 60.0)
+    feats = lambda amp3, trace: [{"amplitude": 0.0, "period": 0.0, "duty": 0.5},  # noqa: E731
+                                 {"amplitude": math.log(amp3), "period": 0.0, "duty": 0.5}, {"_trace": trace}]
+    sims = [feats(3.0, settled)] * 3
+    # the larger cycle grew 4 times where the model's grew 3 times: r = 4 / 3 = (3 - w) / (3 (1 - w))
+    (dz,) = read_off_relays(session, feats(4.0, settled), sims)
+    assert dz.name == "dead_zone" and dz.params["width"] == pytest.approx(1.0 / 3.0)
+    assert step_hunting(session, feats(4.0, settled), sims) == pytest.approx(0.0, abs=1e-12)
+    swing = step_hunting(session, feats(4.0, hunting), sims)
+    assert swing == pytest.approx(0.6, rel=0.05) and swing > HUNT_SWING
+    assert read_off_relays(session, feats(4.0, hunting), sims) == []
+    # a cycle that grew only a little more than the model's reads nothing
+    assert read_off_relays(session, feats(3.3, settled), sims) == []

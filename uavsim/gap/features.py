@@ -58,7 +58,8 @@ import numpy as np
 from uavsim.formats.session import STEP_RUN, RunSpec
 from uavsim.noise.analysis import cycle_harmonics, relay_phase
 
-__all__ = ["FLOORS", "DISTANCES", "SMOOTHER", "run_features", "compare", "gap_value", "noise_offsets", "worst_window"]
+__all__ = ["FLOORS", "DISTANCES", "SMOOTHER", "run_features", "compare", "gap_value", "noise_offsets", "worst_window",
+           "tail_swing"]
 
 # Smallest scale of each feature (what a perfect model still misses: sampling
 # of the switching at the control rate, finite record), in feature units.
@@ -190,6 +191,24 @@ def step_features(spec: RunSpec, t: np.ndarray, y: np.ndarray) -> dict | None:
     f.update(_resid_features(yt, yt, abs(S)))
     f["_trace"] = ys
     return f
+
+
+def tail_swing(trace: np.ndarray) -> float:
+    """Swing of a step response's second half about its slow drift, in steps.
+
+    ``trace`` is a step run's smoothed response over the step (the features' ``_trace``).
+    Its second half less a quadratic fit (the drift of a slow settle or of a disturbance),
+    as a sinusoid's peak-to-peak: ``2 sqrt(2)`` times the std of what is left. A stable
+    linear loop settles and leaves its noise; a loop with play in it hunts, a limit cycle
+    that keeps swinging.
+    """
+    x = np.asarray(trace, dtype=np.float64)
+    x = x[x.size // 2:]
+    if x.size < 4:
+        return 0.0
+    k = np.arange(x.size, dtype=np.float64)
+    rest = x - np.polyval(np.polyfit(k, x, 2), k)
+    return float(2.0 * math.sqrt(2.0) * np.std(rest))
 
 
 def run_features(spec: RunSpec, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:

@@ -60,13 +60,14 @@ from uavsim.gap.features import (
     noise_offsets,
     noise_scales,
     run_features,
+    tail_swing,
     worst_window,
 )
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
-           "credited_gap", "read_model_file", "candidate_grid", "read_off_relays"]
+           "credited_gap", "read_model_file", "candidate_grid", "read_off_relays", "step_hunting"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -287,11 +288,25 @@ SAT_PERIOD_BAND = 1.15
 SAT_DUTY_SHIFT = 0.04
 #: smallest ratio of the two runs' relay amplitudes ``h`` for the comparison
 SAT_H_RATIO = 1.5
+#: the same amplitude ratio at or above which the loop's gain grows with the relay's amplitude:
+#: a dead zone, through which a square wave of amplitude ``h`` passes as one of ``h - width``.
+#: Development testbed sessions (seeds 0-39, 30000-30063 to 70000-70063): clean 0.86-1.21,
+#: dead-zone singles 0.99-1.53, backlashes 0.88-1.49 (docs/results/gap-workflow.md)
+DZ_AMP_RATIO = 1.3
+#: and the period ratio within this factor either way (dead-zone singles 0.85-1.05; rate limits,
+#: whose larger cycle also grows more than ``h`` does, 1.13-1.45)
+DZ_PERIOD_BAND = 1.1
+#: the step runs' :func:`uavsim.gap.features.tail_swing` beyond the base model's (in steps) above
+#: which the loop hunts under the steps' PD. Play (a backlash) passes a relay's square wave as a
+#: dead zone does, but holds the command between reversals: the held command keeps a PD loop
+#: swinging where a dead zone lets it settle. Set between the development sessions' dead zones
+#: and backlashes (docs/results/gap-workflow.md)
+HUNT_SWING = 0.1
 
 
 def read_off_relays(session: Session, meas: list[dict | None],
                     sims: list[list[dict | None]]) -> list[EffectSpec]:
-    """A saturation with its limit, where two relay runs show the loop's gain falling with amplitude.
+    """A saturation or a dead zone, where two relay runs show the loop's gain moving with amplitude.
 
     A relay's output is a square wave of amplitude ``h``; clipped at ``limit < h`` it is a
     square wave of amplitude ``limit``. A linear loop's relay cycle grows in proportion to ``h``
@@ -302,6 +317,13 @@ def read_off_relays(session: Session, meas: list[dict | None],
     h_large``, read when ``r`` is at most :data:`SAT_AMP_RATIO`, the period ratio stays
     within :data:`SAT_PERIOD_BAND` and the relay's duty within :data:`SAT_DUTY_SHIFT` (a
     limit unequal both ways, which the vocabulary's saturation is not, biases the clipped wave).
+
+    Through a dead zone of half-width ``width`` the square wave has amplitude ``h - width``,
+    so the larger cycle grows more than ``h`` does: ``r = (h_large - width) h_small /
+    ((h_small - width) h_large)``, read for ``width`` when ``r`` is at least
+    :data:`DZ_AMP_RATIO` with the period ratio within :data:`DZ_PERIOD_BAND`, and when the
+    step runs settle as the base model's do (:data:`HUNT_SWING`): play in the loop passes the
+    square wave alike, and keeps the steps' PD loop hunting.
 
     Parameters
     ----------
@@ -314,7 +336,7 @@ def read_off_relays(session: Session, meas: list[dict | None],
     Returns
     -------
     list of EffectSpec
-        ``[saturation]`` or empty.
+        ``[saturation]``, ``[dead_zone]`` or empty.
     """
     runs = [i for i, r in enumerate(session.runs) if r.spec.kind != STEP_RUN and r.spec.h
             and meas[i] is not None and all(f[i] is not None for f in sims)]  # fmt: skip
@@ -331,11 +353,24 @@ def read_off_relays(session: Session, meas: list[dict | None],
         return meas[j][feature] - meas[i][feature] - float(np.mean([f[j][feature] - f[i][feature] for f in sims]))
 
     r = math.exp(shift("amplitude"))  # amplitude and period features are logs
-    limit = r * float(specs[j].h)
-    if (r <= SAT_AMP_RATIO and limit > specs[i].h and abs(shift("period")) <= math.log(SAT_PERIOD_BAND)
-            and abs(shift("duty")) <= SAT_DUTY_SHIFT):
-        return [EffectSpec("saturation", {"limit": limit})]
+    h_s, h_l = float(specs[i].h), float(specs[j].h)
+    period = abs(shift("period"))
+    if r <= SAT_AMP_RATIO and r * h_l > h_s and period <= math.log(SAT_PERIOD_BAND) and abs(shift("duty")) <= SAT_DUTY_SHIFT:
+        return [EffectSpec("saturation", {"limit": r * h_l})]
+    if r >= DZ_AMP_RATIO and period <= math.log(DZ_PERIOD_BAND) and step_hunting(session, meas, sims) <= HUNT_SWING:
+        return [EffectSpec("dead_zone", {"width": h_l * h_s * (r - 1.0) / (r * h_l - h_s)})]
     return []
+
+
+def step_hunting(session: Session, meas: list[dict | None], sims: list[list[dict | None]]) -> float:
+    """The step runs' largest tail swing measured beyond the simulated (mean over seeds), in steps; 0 without steps."""
+    out = 0.0
+    for k, run in enumerate(session.runs):
+        if run.spec.kind != STEP_RUN or meas[k] is None:
+            continue
+        flown = [tail_swing(f[k]["_trace"]) for f in sims if f[k] is not None]
+        out = max(out, tail_swing(meas[k]["_trace"]) - (float(np.mean(flown)) if flown else 0.0))
+    return out
 
 
 def _staircase(session: Session, rate_hz: float) -> tuple[dict[str, float], set[str]]:
