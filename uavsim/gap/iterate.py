@@ -40,7 +40,8 @@
    flies the runs better than the one refitted without; that refit is the base model
    of the search, and the gap before is the one without. Without a staircase, two
    relay runs of one ``beta`` whose cycles grow less than their ``h`` does, beyond what
-   the base model flies, read a saturation with its limit the same way
+   the base model flies, read a saturation with its limit the same way; cycles that grow
+   more, with step runs that settle as the model's do, read a dead zone with its width
    (:func:`uavsim.gap.workflow.read_off_relays`).
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
@@ -203,7 +204,7 @@ class FlowResult:
     from_samples : list of dict
         Effects in ``found`` read off the measured runs, each ``{"name", <param>, "evidence",
         "gap_without", "gap_with"}``: ``evidence`` is ``staircase`` (a staircase's cause,
-        :func:`uavsim.gap.workflow.read_off_samples`) or ``relay amplitudes`` (a saturation,
+        :func:`uavsim.gap.workflow.read_off_samples`) or ``relay amplitudes`` (a saturation or a dead zone,
         :func:`uavsim.gap.workflow.read_off_relays`); the gaps are the refitted base model's
         without and with it.
     sims_before : list of SimRun
