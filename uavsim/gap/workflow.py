@@ -294,13 +294,14 @@ SAT_H_RATIO = 1.5
 #: dead-zone singles 0.99-1.53, backlashes 0.88-1.49 (docs/results/gap-workflow.md)
 DZ_AMP_RATIO = 1.3
 #: and the period ratio within this factor either way (dead-zone singles 0.85-1.05; rate limits,
-#: whose larger cycle also grows more than ``h`` does, 1.13-1.45)
+#: whose larger cycle also grows more than ``h`` does, 1.13-1.46)
 DZ_PERIOD_BAND = 1.1
 #: the step runs' :func:`uavsim.gap.features.tail_swing` beyond the base model's (in steps) above
 #: which the loop hunts under the steps' PD. Play (a backlash) passes a relay's square wave as a
 #: dead zone does, but holds the command between reversals: the held command keeps a PD loop
-#: swinging where a dead zone lets it settle. Set between the development sessions' dead zones
-#: and backlashes (docs/results/gap-workflow.md)
+#: swinging where a dead zone lets it settle. Set between the development sessions' attitude dead
+#: zones (at most 0.015) and backlashes (0.49-1.56); on altitude the camera swings every step run
+#: as much (dead zones 0.09-0.47), so no altitude dead zone is read (docs/results/gap-workflow.md)
 HUNT_SWING = 0.1
 
 
