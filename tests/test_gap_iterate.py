@@ -459,3 +459,52 @@ def test_saturation_read_off_the_relay_amplitudes_is_named_when_the_base_model_f
     monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 20.0, ("sample_hold",): 3.0}))
     flow = iterate.analyse(_identified(monkeypatch, 0.0, staircase=True))
     assert flown == [] and [d["evidence"] for d in flow.from_samples] == ["staircase"]
+
+
+def _steps_session(swing_out: tuple[float, float], steps=(0.06, 0.18), growth: float = 0.0) -> Session:
+    """Two PD step runs settling on their step, each with a tail oscillation of ``swing_out`` (output
+    units, peak to peak) at 1.6 Hz; ``growth`` (1/s) makes it grow."""
+    runs = []
+    t = np.arange(1000) / 200.0
+    for k, (S, a) in enumerate(zip(steps, swing_out, strict=True)):
+        r = np.where(t >= 1.0, S, 0.0)
+        tt = np.clip(t - 1.0, 0.0, None)
+        y = r * (1.0 - np.exp(-tt / 0.1)) + (t >= 1.0) * 0.5 * a * np.exp(growth * tt) * np.sin(2 * np.pi * 1.6 * tt)
+        spec = RunSpec(f"step{k}.csv", "step", kp=10.0, kd=1.0, derivative_filter_hz=20.0, step=S, step_time=1.0)
+        runs.append(Run(spec, RunData(t=t, y=y, u=np.zeros_like(t), r=r)))
+    return Session(loop="pitch", control_rate_hz=200.0, runs=runs)
+
+
+def test_steps_that_keep_swinging_at_one_size_show_play():
+    from uavsim.gap.residual import PLAY_SWING, steps_keep_swinging
+
+    # play: the same limit cycle (0.045 rad peak to peak) under both steps, 0.75 and 0.25 of them
+    p = steps_keep_swinging(_steps_session((0.045, 0.045)))
+    assert p is not None and p["amplitude"] == pytest.approx(0.045, rel=0.05)
+    assert p["swing_small"] == pytest.approx(0.75, rel=0.05) and p["swing_large"] == pytest.approx(0.25, rel=0.05)
+    # a linear loop rings in proportion to its step; a settled one does not swing; a loop that grows to
+    # several times its step is one the steps' PD did not hold
+    assert steps_keep_swinging(_steps_session((0.015, 0.045))) is None
+    assert steps_keep_swinging(_steps_session((0.0, 0.0))) is None
+    assert PLAY_SWING[1] <= 1.0
+    assert steps_keep_swinging(_steps_session((0.3, 0.3))) is None
+    # the decision: play makes an answer that named nothing unexplained, whatever the gap
+    assert iterate.decide(False, 2.0, "pitch", None, play=True) == "unexplained"
+    assert iterate.decide(False, 2.0, "pitch", None) == "none"
+    assert iterate.decide(True, 2.0, "pitch", None, play=True) == "named"
+    assert iterate.PLAY_LOOPS == {"altitude": False, "attitude": True}
+
+
+def test_a_flow_that_names_nothing_on_hunting_steps_is_unexplained(monkeypatch):
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    s = _session()
+    s.runs += _steps_session((0.045, 0.045)).runs
+    flow = iterate.analyse(s)
+    assert flow.answer == "unexplained" and flow.residual["play"]["amplitude"] == pytest.approx(0.045, rel=0.05)
+    assert flow.residual["summary"].startswith("the step runs keep swinging")
+    # the same steps settling: the gap within a clean session's answers none
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    s = _session()
+    s.runs += _steps_session((0.0, 0.0)).runs
+    flow = iterate.analyse(s)
+    assert flow.answer == "none" and "play" not in flow.residual

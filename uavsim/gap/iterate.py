@@ -49,7 +49,9 @@
    when it is and the identified (refitted) model shows a phase lag at the
    cycle beyond its class's (a linear delay, lag or low-pass moved ``tau`` or
    the lags: reported with the move), else ``unexplained`` with the residual's character
-   (:mod:`uavsim.gap.residual`).
+   (:mod:`uavsim.gap.residual`). Step runs that keep swinging at one size whatever their
+   step (a limit cycle under the steps' PD, as play in the loop makes, which no vocabulary
+   effect flies) make it ``unexplained`` whatever the gap (:data:`PLAY_LOOPS`).
 
     flow = analyse(read_session("flights/tb_00011"), models="training/runs", log=print)
     flow.answer, [e.name for e in flow.found], flow.absorbed, flow.residual["summary"]
@@ -79,7 +81,7 @@ from uavsim.formats.session import (
 )
 from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
-from uavsim.gap.residual import residual_character
+from uavsim.gap.residual import residual_character, steps_keep_swinging
 from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import (
     CANDIDATES,
@@ -167,6 +169,11 @@ ABSORB_REFIT_SHARE = 0.022
 #: of other effects' (a low-pass: 4.1e-3; docs/results/gap-workflow.md). Set on the testbed vehicle: an
 #: aircraft with another IMU chain has its own clean level
 NOISE_STD: dict[str, float | None] = {"altitude": None, "attitude": 2.0e-4}
+#: per loop family, whether step runs that keep swinging at one size whatever their step
+#: (:func:`uavsim.gap.residual.steps_keep_swinging`: play in the loop) make an answer that named
+#: nothing ``unexplained``. Not on altitude: the camera's noise and outliers swing its clean step
+#: runs as much as play does (docs/results/gap-workflow.md)
+PLAY_LOOPS: dict[str, bool] = {"altitude": False, "attitude": True}
 #: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
 READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
 
@@ -460,10 +467,13 @@ def declined(res: GapResult, model: ModelSpec) -> GapResult:
                                effects=list(res.effects[:-1]), sims_after=res.sims_before)  # fmt: skip
 
 
-def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None) -> str:
-    """The answer's kind: ``named`` when an effect was added, else by the base model's gap and the identification."""
+def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, play: bool = False) -> str:
+    """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the steps hunt
+    (``play``), else by the base model's gap and the identification."""
     if named:
         return "named"
+    if play:
+        return "unexplained"
     if gap_before <= NONE_GAP[family(loop)]:
         return "absorbed" if absorbed else "none"
     return "unexplained"
@@ -640,8 +650,17 @@ def analyse(
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
+    play = steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None
+    if play is not None:
+        residual["play"] = play
+        residual["summary"] = (
+            f"the step runs keep swinging, {play['amplitude']:.3g} peak to peak whatever their step "
+            f"({play['swing_small']:.2f} and {play['swing_large']:.2f} of it): a limit cycle under the steps' PD, "
+            "as play in the loop makes; " + residual["summary"]
+        )
+        log("the step runs keep swinging at one size whatever their step (a limit cycle, as play makes)")
     absorbed = absorbed_by(ident) if source == "identified" else None
-    answer = decide(bool(found), gap_before, session.loop, absorbed)
+    answer = decide(bool(found), gap_before, session.loop, absorbed, play=play is not None)
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,

@@ -22,16 +22,26 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.formats.session import STEP_RUN, Session
-from uavsim.gap.features import run_features
+from uavsim.gap.features import run_features, tail_swing
 from uavsim.gap.simulate import SimRun
 
-__all__ = ["residual_character", "run_residual"]
+__all__ = ["residual_character", "run_residual", "steps_keep_swinging"]
 
 #: harmonics of the mean cycle examined (1 = the fundamental)
 HARMONICS = (1, 2, 3, 4, 5)
 #: a run is listed as carrying the residual when its share of the total (over the relay runs,
 #: or over the steps) is at least this
 RUN_SHARE = 0.15
+#: a step run's :func:`uavsim.gap.features.tail_swing` (in steps) between these for the steps'
+#: swing to count as a limit cycle: over what noise and a settling loop leave, under a loop that
+#: grows until a limit stops it. Development testbed attitude sessions (seeds 0-39, 30000-30063 to
+#: 80000-80063): the larger step of every backlash 0.16-0.55, of clean sessions at most 0.01, of two
+#: delay singles whose loop the steps' PD did not hold 3.3-6.2 (docs/results/gap-workflow.md)
+PLAY_SWING = (0.1, 1.0)
+#: and the two step runs' swings, in output units, equal within this factor: a limit cycle's size
+#: is the nonlinearity's own, not the step's (backlashes 0.89-1.08; loops ringing from a lag,
+#: low-pass or delay 0.10-0.78, since a linear loop's ringing scales with its step)
+PLAY_SAME = 1.15
 
 
 def _where(phase: float, duty: float) -> str:
@@ -139,3 +149,36 @@ def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
     if top:
         summary += "; largest in harmonics " + ", ".join(str(h) for h in top)
     return {"runs": runs, "carried_by": carried, "harmonics": top, "summary": summary}
+
+
+def steps_keep_swinging(session: Session) -> dict | None:
+    """The step runs' swing when both keep swinging at one size whatever their step, else None.
+
+    A PD loop around play (a backlash) hunts: the command held between reversals keeps it
+    swinging in a limit cycle whose size is the play's, so two steps of different sizes swing
+    alike in output units. A linear loop settles, or rings in proportion to its step. The
+    largest and smallest steps (at least 1.5 apart) are compared: the larger's swing must lie
+    within :data:`PLAY_SWING` of its step and the two sizes agree within :data:`PLAY_SAME`.
+
+    Returns
+    -------
+    dict or None
+        ``{"swing_small", "swing_large"}`` (each in its run's steps) and ``amplitude`` (their
+        mean in output units, peak to peak).
+    """
+    sw = []
+    for r in session.runs:
+        if r.spec.kind != STEP_RUN or not r.spec.step:
+            continue
+        f = run_features(r.spec, r.data.t, r.data.y, r.data.u)
+        if f is not None:
+            sw.append((abs(float(r.spec.step)), tail_swing(f["_trace"])))
+    if len(sw) < 2:
+        return None
+    (s_small, w_small), (s_large, w_large) = min(sw), max(sw)
+    if s_large < 1.5 * s_small or not PLAY_SWING[0] <= w_large <= PLAY_SWING[1]:
+        return None
+    a_small, a_large = w_small * s_small, w_large * s_large
+    if not 1.0 / PLAY_SAME <= a_small / a_large <= PLAY_SAME:
+        return None
+    return {"swing_small": w_small, "swing_large": w_large, "amplitude": 0.5 * (a_small + a_large)}

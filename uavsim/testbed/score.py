@@ -87,7 +87,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "from_samples": [d["name"] for d in j["from_samples"]],
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
-                "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
+                "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"], "play": flow.residual.get("play"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
@@ -106,7 +106,7 @@ def redecide(r: dict) -> dict:
         return r
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
-    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed)
+    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed, play=bool(r.get("play")))
     t = {"kind": r["kind"], "effects": [{"name": n, "params": p} for n, p in
                                         zip(r["truth"].split("+"), r["truth_params"], strict=False)]}  # fmt: skip
     if r["kind"] == "none":
