@@ -492,7 +492,6 @@ def test_steps_that_keep_swinging_at_one_size_show_play():
     assert iterate.decide(False, 2.0, "pitch", None, play=True) == "unexplained"
     assert iterate.decide(False, 2.0, "pitch", None) == "none"
     assert iterate.decide(True, 2.0, "pitch", None, play=True) == "named"
-    assert iterate.PLAY_LOOPS == {"altitude": False, "attitude": True}
 
 
 def test_a_flow_that_names_nothing_on_hunting_steps_is_unexplained(monkeypatch):

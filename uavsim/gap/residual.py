@@ -36,11 +36,11 @@ RUN_SHARE = 0.15
 #: swing to count as a limit cycle: over what noise and a settling loop leave, under a loop that
 #: grows until a limit stops it. Development testbed attitude sessions (seeds 0-39, 30000-30063 to
 #: 80000-80063): the larger step of every backlash 0.16-0.55, of clean sessions at most 0.01, of two
-#: delay singles whose loop the steps' PD did not hold 3.3-6.2 (docs/results/gap-workflow.md)
+#: delays and a hold whose loop the steps' PD did not hold 3.3-6.2 (docs/results/gap-workflow.md)
 PLAY_SWING = (0.1, 1.0)
 #: and the two step runs' swings, in output units, equal within this factor: a limit cycle's size
 #: is the nonlinearity's own, not the step's (backlashes 0.89-1.08; loops ringing from a lag,
-#: low-pass or delay 0.10-0.78, since a linear loop's ringing scales with its step)
+#: low-pass or delay 0.10-0.76, since a linear loop's ringing scales with its step)
 PLAY_SAME = 1.15
 
 
