@@ -407,3 +407,7 @@ def test_dead_zone_read_needs_the_step_runs_to_settle():
     assert read_off_relays(session, feats(4.0, hunting), sims) == []
     # a cycle that grew only a little more than the model's reads nothing
     assert read_off_relays(session, feats(3.3, settled), sims) == []
+    # the same growth with the duty moved (a bias moved it 0.09-0.10 on the testbed): not a dead zone
+    moved = feats(4.0, settled)
+    moved[1]["duty"] = 0.6
+    assert read_off_relays(session, moved, sims) == []

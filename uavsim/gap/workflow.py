@@ -282,9 +282,11 @@ SAT_AMP_RATIO = 0.8
 #: amplitude, not its period (the same sessions: saturation singles 0.96-1.09, with a second effect
 #: 0.91-1.13); a bias or a noise-driven orbit moves both (a bias with a ratio of 0.72: 0.76)
 SAT_PERIOD_BAND = 1.15
-#: and the larger run's relay duty within this of the smaller's (measured less simulated): limits
-#: alike both ways keep the clipped square wave symmetric, where unequal ones bias it and move the
-#: duty (the same sessions: saturation singles at most 0.025, asymmetric saturations 0.060-0.155)
+#: and the larger run's relay duty within this of the smaller's (measured less simulated), for a
+#: saturation as for a dead zone: limits, or a dead zone, alike both ways keep the square wave
+#: symmetric, where unequal limits or a bias move the duty (the same sessions: saturation singles at
+#: most 0.025, asymmetric saturations 0.060-0.155; dead-zone singles at most 0.027, the bias single
+#: and the bias + dead zone pair of 90000-90063 that the dead-zone read took for dead zones 0.087-0.102)
 SAT_DUTY_SHIFT = 0.04
 #: smallest ratio of the two runs' relay amplitudes ``h`` for the comparison
 SAT_H_RATIO = 1.5
@@ -322,9 +324,10 @@ def read_off_relays(session: Session, meas: list[dict | None],
     Through a dead zone of half-width ``width`` the square wave has amplitude ``h - width``,
     so the larger cycle grows more than ``h`` does: ``r = (h_large - width) h_small /
     ((h_small - width) h_large)``, read for ``width`` when ``r`` is at least
-    :data:`DZ_AMP_RATIO` with the period ratio within :data:`DZ_PERIOD_BAND`, and when the
-    step runs settle as the base model's do (:data:`HUNT_SWING`): play in the loop passes the
-    square wave alike, and keeps the steps' PD loop hunting.
+    :data:`DZ_AMP_RATIO` with the period ratio within :data:`DZ_PERIOD_BAND`, the duty within
+    :data:`SAT_DUTY_SHIFT` (a bias moves it), and when the step runs settle as the base model's
+    do (:data:`HUNT_SWING`): play in the loop passes the square wave alike, and keeps the steps'
+    PD loop hunting.
 
     Parameters
     ----------
@@ -356,7 +359,9 @@ def read_off_relays(session: Session, meas: list[dict | None],
     r = math.exp(shift("amplitude"))  # amplitude and period features are logs
     h_s, h_l = float(specs[i].h), float(specs[j].h)
     period = abs(shift("period"))
-    if r <= SAT_AMP_RATIO and r * h_l > h_s and period <= math.log(SAT_PERIOD_BAND) and abs(shift("duty")) <= SAT_DUTY_SHIFT:
+    if abs(shift("duty")) > SAT_DUTY_SHIFT:
+        return []
+    if r <= SAT_AMP_RATIO and r * h_l > h_s and period <= math.log(SAT_PERIOD_BAND):
         return [EffectSpec("saturation", {"limit": r * h_l})]
     if r >= DZ_AMP_RATIO and period <= math.log(DZ_PERIOD_BAND) and step_hunting(session, meas, sims) <= HUNT_SWING:
         return [EffectSpec("dead_zone", {"width": h_l * h_s * (r - 1.0) / (r * h_l - h_s)})]
