@@ -59,7 +59,7 @@ from uavsim.formats.session import STEP_RUN, RunSpec
 from uavsim.noise.analysis import cycle_harmonics, relay_phase
 
 __all__ = ["FLOORS", "DISTANCES", "SMOOTHER", "run_features", "compare", "gap_value", "noise_offsets", "worst_window",
-           "tail_swing"]
+           "tail_swing", "step_swings"]
 
 # Smallest scale of each feature (what a perfect model still misses: sampling
 # of the switching at the control rate, finite record), in feature units.
@@ -209,6 +209,12 @@ def tail_swing(trace: np.ndarray) -> float:
     k = np.arange(x.size, dtype=np.float64)
     rest = x - np.polyval(np.polyfit(k, x, 2), k)
     return float(2.0 * math.sqrt(2.0) * np.std(rest))
+
+
+def step_swings(specs: Sequence[RunSpec], feats: Sequence[dict | None]) -> dict[int, float]:
+    """Per step run with features (index into ``specs``), its :func:`tail_swing`, in steps."""
+    return {k: tail_swing(f["_trace"]) for k, (spec, f) in enumerate(zip(specs, feats, strict=True))
+            if spec.kind == STEP_RUN and f is not None}  # fmt: skip
 
 
 def run_features(spec: RunSpec, t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:

@@ -653,12 +653,8 @@ def analyse(
     play = steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None
     if play is not None:
         residual["play"] = play
-        residual["summary"] = (
-            f"the step runs keep swinging, {play['amplitude']:.3g} peak to peak whatever their step "
-            f"({play['swing_small']:.2f} and {play['swing_large']:.2f} of it): a limit cycle under the steps' PD, "
-            "as play in the loop makes; " + residual["summary"]
-        )
-        log("the step runs keep swinging at one size whatever their step (a limit cycle, as play makes)")
+        residual["summary"] = play["summary"] + "; " + residual["summary"]
+        log(play["summary"])
     absorbed = absorbed_by(ident) if source == "identified" else None
     answer = decide(bool(found), gap_before, session.loop, absorbed, play=play is not None)
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.formats.session import STEP_RUN, Session
-from uavsim.gap.features import run_features, tail_swing
+from uavsim.gap.features import run_features, step_swings
 from uavsim.gap.simulate import SimRun
 
 __all__ = ["residual_character", "run_residual", "steps_keep_swinging"]
@@ -163,22 +163,22 @@ def steps_keep_swinging(session: Session) -> dict | None:
     Returns
     -------
     dict or None
-        ``{"swing_small", "swing_large"}`` (each in its run's steps) and ``amplitude`` (their
-        mean in output units, peak to peak).
+        ``{"swing_small", "swing_large"}`` (each in its run's steps), ``amplitude`` (their
+        mean in output units, peak to peak) and ``summary`` (words for the residual's).
     """
-    sw = []
-    for r in session.runs:
-        if r.spec.kind != STEP_RUN or not r.spec.step:
-            continue
-        f = run_features(r.spec, r.data.t, r.data.y, r.data.u)
-        if f is not None:
-            sw.append((abs(float(r.spec.step)), tail_swing(f["_trace"])))
+    specs = [r.spec for r in session.runs]
+    feats = [run_features(r.spec, r.data.t, r.data.y, r.data.u) if r.spec.kind == STEP_RUN else None
+             for r in session.runs]  # fmt: skip
+    sw = sorted((abs(float(specs[k].step)), w) for k, w in step_swings(specs, feats).items() if specs[k].step)
     if len(sw) < 2:
         return None
-    (s_small, w_small), (s_large, w_large) = min(sw), max(sw)
+    (s_small, w_small), (s_large, w_large) = sw[0], sw[-1]
     if s_large < 1.5 * s_small or not PLAY_SWING[0] <= w_large <= PLAY_SWING[1]:
         return None
     a_small, a_large = w_small * s_small, w_large * s_large
     if not 1.0 / PLAY_SAME <= a_small / a_large <= PLAY_SAME:
         return None
-    return {"swing_small": w_small, "swing_large": w_large, "amplitude": 0.5 * (a_small + a_large)}
+    amplitude = 0.5 * (a_small + a_large)
+    summary = (f"the step runs keep swinging, {amplitude:.3g} peak to peak whatever their step "
+               f"({w_small:.2f} and {w_large:.2f} of it): a limit cycle under the steps' PD, as play in the loop makes")
+    return {"swing_small": w_small, "swing_large": w_large, "amplitude": amplitude, "summary": summary}

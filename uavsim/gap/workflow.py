@@ -60,7 +60,7 @@ from uavsim.gap.features import (
     noise_offsets,
     noise_scales,
     run_features,
-    tail_swing,
+    step_swings,
     worst_window,
 )
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
@@ -370,12 +370,12 @@ def read_off_relays(session: Session, meas: list[dict | None],
 
 def step_hunting(session: Session, meas: list[dict | None], sims: list[list[dict | None]]) -> float:
     """The step runs' largest tail swing measured beyond the simulated (mean over seeds), in steps; 0 without steps."""
+    specs = [r.spec for r in session.runs]
+    flown = [step_swings(specs, f) for f in sims]
     out = 0.0
-    for k, run in enumerate(session.runs):
-        if run.spec.kind != STEP_RUN or meas[k] is None:
-            continue
-        flown = [tail_swing(f[k]["_trace"]) for f in sims if f[k] is not None]
-        out = max(out, tail_swing(meas[k]["_trace"]) - (float(np.mean(flown)) if flown else 0.0))
+    for k, w in step_swings(specs, meas).items():
+        ws = [f[k] for f in flown if k in f]
+        out = max(out, w - (float(np.mean(ws)) if ws else 0.0))
     return out
 
 
