@@ -47,7 +47,7 @@ def test_small_layout(small):
     assert np.all(np.abs(ds.inputs) <= 1.0 + 1e-6)
     assert ds.attrs["recipe"] == SMALL.read_text() and ds.attrs["seed"] == r.seed == 7
     assert ds.attrs["grid_hash"] == g.hash and ds.attrs["beta"] == g.beta
-    assert set(ds.attrs["versions"]) == {"python", "numpy", "mujoco", "h5py", "uavsim"}
+    assert set(ds.attrs["versions"]) == {"python", "numpy", "mujoco", "h5py", "uavsim", "blas"}
     ci = np.asarray(r.classes)
     np.testing.assert_allclose(ds.class_table["period"], g.period[ci])
     np.testing.assert_allclose(ds.class_table["kp"], g.kp[ci])

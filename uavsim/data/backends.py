@@ -230,14 +230,24 @@ def run_dask(plan: Plan, todo: list[int], client, on_result: Callable[[int, dict
 # --- metadata ------------------------------------------------------------------------------------
 
 def versions() -> dict[str, str]:
-    """Versions of what shapes the data (stored in the file as JSON)."""
+    """Versions of what shapes the data (stored in the file as JSON).
+
+    ``blas`` names the BLAS libraries and the kernels they chose for this CPU
+    (``OPENBLAS_CORETYPE`` overrides OpenBLAS's choice): another kernel moves the
+    samples' last bits, so it tells why one recipe and seed gave other bytes elsewhere.
+    """
     import h5py
     import mujoco
+    import scipy.linalg  # noqa: F401 - loads scipy's own BLAS, so that it is listed too
+    from threadpoolctl import threadpool_info
 
     import uavsim
 
+    blas = sorted({f"{i.get('internal_api')} {i.get('version')} {i.get('architecture', '?')}"
+                   for i in threadpool_info() if i.get("user_api") == "blas"})
     return {"python": sys.version.split()[0], "numpy": np.__version__, "mujoco": mujoco.__version__,
-            "h5py": h5py.__version__, "uavsim": getattr(uavsim, "__version__", "unknown")}
+            "h5py": h5py.__version__, "uavsim": getattr(uavsim, "__version__", "unknown"),
+            "blas": ", ".join(blas) or "none"}
 
 
 #: versions a Dask worker must share with the client (they change the simulated episodes)
