@@ -46,9 +46,19 @@ def test_packaged_lateral_table_closes_attitude_with_its_table():
 
 
 def test_rebuild_reproduces_the_packaged_attitude_table():
+    """The packaged table is what the code builds, to the optimizer's precision.
+
+    The gains are a numerical optimum, and the BLAS kernels move it in the last
+    digits: the packaged table was built under OpenBLAS's SkylakeX kernels, and
+    rebuilt under Haswell ones kp moves by 2.0e-8 relative, under Sandybridge
+    ones by 9.7e-8; the tolerance is ten times the larger. J is stored to six
+    digits, and its entry nearest a stability edge (class 32's PD on class 24,
+    J = 164) magnifies those moves: 1.9e-5 relative under Haswell kernels; its
+    tolerance is five times that.
+    """
     t, b = load_table("attitude"), build_table("attitude")
-    assert np.allclose(b.kp, t.kp, rtol=1e-8) and np.allclose(b.kd, t.kd, rtol=1e-8)
-    assert np.allclose(b.J, t.J, rtol=1e-5)
+    assert np.allclose(b.kp, t.kp, rtol=1e-6) and np.allclose(b.kd, t.kd, rtol=1e-6)
+    assert np.allclose(b.J, t.J, rtol=1e-4)
 
 
 def test_table_J_entry_and_identical_classes():
