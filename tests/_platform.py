@@ -16,7 +16,7 @@ import numpy as np
 import scipy.linalg  # noqa: F401 - loads scipy's own OpenBLAS, so that its kernels are read too
 from threadpoolctl import threadpool_info
 
-#: where the committed references (training-set digests, the example session, the packaged tables) were made
+#: where the committed byte references (the training-set digests, the example session) were made
 RECORDED = {"numpy": "2.4.6", "mujoco": "4.0.0", "machine": "x86_64", "blas": "openblas Haswell"}
 
 
