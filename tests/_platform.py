@@ -13,18 +13,11 @@ import platform
 
 import mujoco
 import numpy as np
-import scipy.linalg  # noqa: F401 - loads scipy's own OpenBLAS, so that its kernels are read too
-from threadpoolctl import threadpool_info
+
+from uavsim.data.backends import blas_kernels
 
 #: where the committed byte references (the training-set digests, the example session) were made
 RECORDED = {"numpy": "2.4.6", "mujoco": "4.0.0", "machine": "x86_64", "blas": "openblas Haswell"}
-
-
-def blas_kernels() -> str:
-    """The BLAS libraries loaded and the kernels they run, e.g. ``"openblas SkylakeX"``."""
-    kinds = sorted({f"{i.get('internal_api')} {i.get('architecture', '?')}" for i in threadpool_info()
-                    if i.get("user_api") == "blas"})
-    return ", ".join(kinds) or "none"
 
 
 def platform_differs(recorded: dict[str, str] = RECORDED) -> str | None:

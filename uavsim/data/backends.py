@@ -238,16 +238,24 @@ def versions() -> dict[str, str]:
     """
     import h5py
     import mujoco
-    import scipy.linalg  # noqa: F401 - loads scipy's own BLAS, so that it is listed too
-    from threadpoolctl import threadpool_info
 
     import uavsim
 
-    blas = sorted({f"{i.get('internal_api')} {i.get('version')} {i.get('architecture', '?')}"
-                   for i in threadpool_info() if i.get("user_api") == "blas"})
     return {"python": sys.version.split()[0], "numpy": np.__version__, "mujoco": mujoco.__version__,
             "h5py": h5py.__version__, "uavsim": getattr(uavsim, "__version__", "unknown"),
-            "blas": ", ".join(blas) or "none"}
+            "blas": blas_kernels(with_version=True)}
+
+
+def blas_kernels(*, with_version: bool = False) -> str:
+    """The BLAS libraries numpy and scipy loaded and the kernels they run, e.g. ``"openblas Haswell"``
+    (``"openblas 0.3.31 Haswell"`` with their versions), one entry per distinct library."""
+    import scipy.linalg  # noqa: F401 - loads scipy's own BLAS, so that it is listed too
+    from threadpoolctl import threadpool_info
+
+    kinds = sorted({" ".join([str(i.get("internal_api"))] + ([str(i.get("version"))] if with_version else [])
+                             + [str(i.get("architecture", "?"))])
+                    for i in threadpool_info() if i.get("user_api") == "blas"})  # fmt: skip
+    return ", ".join(kinds) or "none"
 
 
 #: versions a Dask worker must share with the client (they change the simulated episodes)

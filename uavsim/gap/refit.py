@@ -22,7 +22,7 @@ refit is kept only when, flown again with fresh seeds, it beats the start.
 One relay cycle also fits every class of the network (each class's lags with its own gain and
 delay on the cycle's point), and where the process lies outside the grid's box (a long added
 delay) the network's class can be far from the lumped equivalent, beyond the search's reach
-(:data:`SPAN`, :data:`TAU_SPAN`). So the search starts from the best of ``starts`` when one is given: every class
+(:data:`SPAN`). So the search starts from the best of ``starts`` when one is given: every class
 fitted to the identified cycle (:func:`uavsim.gap.iterate.class_starts`), flown in one batch
 with the identified model (:data:`SCREEN_SEEDS` noise seeds each) and scored on the same noise
 scales; the search then moves around that start, and its result is still kept only when it
@@ -67,12 +67,11 @@ ITERATIONS = 8
 SEEDS = 2
 #: fresh seeds for the final comparison of the start and the refit
 VERIFY_SEEDS = 3
-#: the refit moves no parameter further than this factor from its start
-SPAN = 4.0
-#: but ``tau`` this far: a lag or low-pass the identified class lacks lands in ``tau``, and on 32
-#: development testbed sessions the search had stopped at x4 on it (clean gaps there 2.6-5.3 ->
-#: 2.2-4.8 at x16; answers right 21 -> 23, docs/results/gap-workflow.md)
-TAU_SPAN = 16.0
+#: the refit moves each parameter no further than this factor from its start; ``tau`` furthest: a
+#: lag or low-pass the identified class lacks lands in it, and on 32 development testbed sessions
+#: the search had stopped at x4 on it (clean gaps there 2.6-5.3 -> 2.2-4.8 at x16; answers right
+#: 21 -> 23, docs/results/gap-workflow.md)
+SPAN = {"K": 4.0, "T_prop": 4.0, "T1": 4.0, "tau": 16.0}
 #: noise seeds per screened start (:func:`refit_base`'s ``starts``)
 SCREEN_SEEDS = 1
 #: smallest delay, s (the log needs one; below a control period it is not seen)
@@ -239,7 +238,7 @@ def refit_base(
             xs = _to_x(pts[j])
             log(f"refit starts from screened start {j - 1} of {len(starts)}: gap {g[0]:.3f} -> {g[j]:.3f} "
                 f"(T_prop {pts[j].T_prop:.4g} s, T1 {pts[j].T1:.4g} s, tau {pts[j].tau * 1e3:.1f} ms)")
-    span = np.log([TAU_SPAN if k == "tau" else SPAN for k in PARAMS])
+    span = np.log([SPAN[k] for k in PARAMS])
     lo, hi = xs - span, xs + span
     lo[PARAMS.index("tau")] = min(lo[PARAMS.index("tau")], math.log(TAU_FLOOR))
     steps = np.array([STEPS[k] for k in PARAMS])
