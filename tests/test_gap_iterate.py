@@ -489,9 +489,9 @@ def test_steps_that_keep_swinging_at_one_size_show_play():
     assert PLAY_SWING[1] <= 1.0
     assert steps_keep_swinging(_steps_session((0.3, 0.3))) is None
     # the decision: play makes an answer that named nothing unexplained, whatever the gap
-    assert iterate.decide(False, 2.0, "pitch", None, play=True) == "unexplained"
+    assert iterate.decide(False, 2.0, "pitch", None, beyond=True) == "unexplained"
     assert iterate.decide(False, 2.0, "pitch", None) == "none"
-    assert iterate.decide(True, 2.0, "pitch", None, play=True) == "named"
+    assert iterate.decide(True, 2.0, "pitch", None, beyond=True) == "named"
 
 
 def test_a_flow_that_names_nothing_on_hunting_steps_is_unexplained(monkeypatch):
@@ -507,3 +507,40 @@ def test_a_flow_that_names_nothing_on_hunting_steps_is_unexplained(monkeypatch):
     s.runs += _steps_session((0.0, 0.0)).runs
     flow = iterate.analyse(s)
     assert flow.answer == "none" and "play" not in flow.residual
+
+
+def _wandering_session(depth: float, loop: str = "pitch", period: float = 0.25, cycles: int = 24) -> Session:
+    """One relay run whose frequency swings by +-``depth`` of its mean over 3 cycles (a delay that varies)."""
+    t = np.arange(int(cycles * period * RATE)) / RATE
+    f = (1.0 + depth * np.sin(2 * np.pi * t / (3 * period))) / period
+    phi = 2 * np.pi * np.cumsum(f) / RATE
+    u = np.where(np.sin(phi) >= 0, 1.0, -1.0)
+    spec = RunSpec("r0.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0)
+    run = Run(spec, RunData(t, np.zeros_like(t), -np.cos(phi), u))
+    return Session(loop, RATE, [run], model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0))
+
+
+def test_relay_cycles_whose_period_wanders_are_read_off_the_run():
+    from uavsim.gap.residual import periods_wander
+
+    w = periods_wander(_wandering_session(0.08), 0.029)
+    # a frequency swinging +-8 % as a sine: cycle periods spread by about 8 % / sqrt(2)
+    assert w is not None and w["spread"] == pytest.approx(0.08 / math.sqrt(2), rel=0.25)
+    assert w["runs"] == {"r0.csv": w["spread"]} and "wanders" in w["summary"]
+    # a fixed loop's cycle repeats (up to a sample); the limit is the caller's
+    assert periods_wander(_wandering_session(0.0), 0.029) is None
+    assert periods_wander(_wandering_session(0.08), 0.2) is None
+
+
+def test_a_flow_that_names_nothing_on_wandering_cycles_is_unexplained_on_attitude_only(monkeypatch):
+    assert iterate.PERIOD_SPREAD["altitude"] is None
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_wandering_session(0.08))
+    assert flow.answer == "unexplained" and flow.residual["summary"].startswith("the relay cycles' period wanders")
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_wandering_session(0.0))
+    assert flow.answer == "none" and "wander" not in flow.residual
+    # altitude's clean cycles spread as much (camera noise): not read there
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_wandering_session(0.08, loop="altitude", period=1.0))
+    assert flow.answer == "none" and "wander" not in flow.residual

@@ -19,6 +19,10 @@ edges of the relay output ``u``, which is noise-free):
   autocorrelation of that second difference: low-pass and hold colour it), ``repeat`` (fraction of samples equal to the previous one:
   staircase levels of quantization and sample-and-hold).
 
+Not compared (kept for the workflow's own reads): ``_wave`` (the mean cycle),
+``_cycles`` and ``_period_spread`` (the cycle periods' std over their mean, NaN
+under 4 cycles: how much the cycle wanders, :func:`uavsim.gap.residual.periods_wander`).
+
 Step runs, after ``step_time`` and normalized by the step size:
 ``overshoot``, ``onset`` (log time to 5% of the step), ``rise`` (log 10-90%
 rise time), ``ise`` (log), ``settled`` (mean error over the last 30%),
@@ -148,6 +152,8 @@ def relay_features(t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
     f.update(_resid_features(y[a:b], resid, amp))
     f["_wave"] = wn
     f["_cycles"] = nc
+    p = np.diff(t[edges])
+    f["_period_spread"] = float(np.std(p) / np.mean(p)) if p.size >= 4 else math.nan
     return f
 
 

@@ -51,7 +51,9 @@
    the lags: reported with the move), else ``unexplained`` with the residual's character
    (:mod:`uavsim.gap.residual`). Step runs that keep swinging at one size whatever their
    step (a limit cycle under the steps' PD, as play in the loop makes, which no vocabulary
-   effect flies) make it ``unexplained`` whatever the gap (:data:`PLAY_LOOPS`).
+   effect flies) make it ``unexplained`` whatever the gap (:data:`PLAY_LOOPS`), and so do relay
+   cycles whose period wanders beyond a fixed loop's jitter (an effect that varies in time:
+   :data:`PERIOD_SPREAD`, :func:`uavsim.gap.residual.periods_wander`).
 
     flow = analyse(read_session("flights/tb_00011"), models="training/runs", log=print)
     flow.answer, [e.name for e in flow.found], flow.absorbed, flow.residual["summary"]
@@ -81,7 +83,7 @@ from uavsim.formats.session import (
 )
 from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
-from uavsim.gap.residual import residual_character, steps_keep_swinging
+from uavsim.gap.residual import periods_wander, residual_character, steps_keep_swinging
 from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import (
     CANDIDATES,
@@ -177,6 +179,13 @@ NOISE_STD: dict[str, float | None] = {"altitude": None, "attitude": 2.0e-4}
 #: nothing ``unexplained``. Not on altitude: the camera's noise and outliers swing its clean step
 #: runs as much as play does (docs/results/gap-workflow.md)
 PLAY_LOOPS: dict[str, bool] = {"altitude": False, "attitude": True}
+#: per loop family, the relay cycles' period spread (std over mean, the largest of a session's relay
+#: runs) beyond which an answer that named nothing is ``unexplained`` (an effect that varies in time);
+#: None: never. Attitude: 10 % above the largest of the 34 clean attitude testbed sessions of the
+#: spent seeds 80000-110063 (0.0265; their 7 varying delays 0.024-0.099). Not on altitude: the camera's
+#: noise spreads its clean sessions' periods up to 0.17, over its varying delays' 0.035-0.14
+#: (docs/results/gap-workflow.md)
+PERIOD_SPREAD: dict[str, float | None] = {"altitude": None, "attitude": 0.029}
 #: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
 READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
 
@@ -470,12 +479,13 @@ def declined(res: GapResult, model: ModelSpec) -> GapResult:
                                effects=list(res.effects[:-1]), sims_after=res.sims_before)  # fmt: skip
 
 
-def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, play: bool = False) -> str:
-    """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the steps hunt
-    (``play``), else by the base model's gap and the identification."""
+def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, beyond: bool = False) -> str:
+    """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the runs show what no
+    vocabulary effect flies (``beyond``: steps that hunt, cycles that wander), else by the base model's
+    gap and the identification."""
     if named:
         return "named"
-    if play:
+    if beyond:
         return "unexplained"
     if gap_before <= NONE_GAP[family(loop)]:
         return "absorbed" if absorbed else "none"
@@ -653,13 +663,16 @@ def analyse(
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
-    play = steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None
-    if play is not None:
-        residual["play"] = play
-        residual["summary"] = play["summary"] + "; " + residual["summary"]
-        log(play["summary"])
+    limit = PERIOD_SPREAD[family(session.loop)]
+    beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None,
+              "wander": periods_wander(live, limit) if limit is not None else None}
+    for key, sign in beyond.items():
+        if sign is not None:
+            residual[key] = sign
+            residual["summary"] = sign["summary"] + "; " + residual["summary"]
+            log(sign["summary"])
     absorbed = absorbed_by(ident) if source == "identified" else None
-    answer = decide(bool(found), gap_before, session.loop, absorbed, play=play is not None)
+    answer = decide(bool(found), gap_before, session.loop, absorbed, beyond=any(v is not None for v in beyond.values()))
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,

@@ -25,7 +25,7 @@ from uavsim.formats.session import STEP_RUN, Session
 from uavsim.gap.features import run_features, step_swings
 from uavsim.gap.simulate import SimRun
 
-__all__ = ["residual_character", "run_residual", "steps_keep_swinging"]
+__all__ = ["residual_character", "run_residual", "steps_keep_swinging", "periods_wander"]
 
 #: harmonics of the mean cycle examined (1 = the fundamental)
 HARMONICS = (1, 2, 3, 4, 5)
@@ -182,3 +182,32 @@ def steps_keep_swinging(session: Session) -> dict | None:
     summary = (f"the step runs keep swinging, {amplitude:.3g} peak to peak whatever their step "
                f"({w_small:.2f} and {w_large:.2f} of it): a limit cycle under the steps' PD, as play in the loop makes")
     return {"swing_small": w_small, "swing_large": w_large, "amplitude": amplitude, "summary": summary}
+
+
+def periods_wander(session: Session, limit: float) -> dict | None:
+    """The relay runs' cycle-period spread when one of them wanders beyond ``limit``, else None.
+
+    A fixed loop under a relay repeats its cycle; noise jitters each switch, and a
+    delay that varies in time (or any effect that does) makes the period wander
+    from cycle to cycle, which no vocabulary effect, all of them fixed, flies. The
+    spread is the std of a run's cycle periods over their mean
+    (``uavsim.gap.features``' ``_period_spread``; runs of 4 cycles or more).
+
+    Returns
+    -------
+    dict or None
+        ``{"spread"}`` (the largest), ``runs`` (file -> spread) and ``summary`` (words for the residual's).
+    """
+    spread = {}
+    for r in session.runs:
+        if r.spec.kind == STEP_RUN:
+            continue
+        f = run_features(r.spec, r.data.t, r.data.y, r.data.u)
+        if f is not None and math.isfinite(f["_period_spread"]):
+            spread[r.spec.file] = f["_period_spread"]
+    if not spread or max(spread.values()) <= limit:
+        return None
+    top = max(spread, key=spread.get)
+    summary = (f"the relay cycles' period wanders by {spread[top]:.1%} (std over mean) in {Path(top).stem}, over "
+               f"the {limit:.1%} a fixed loop's jitter stays within: an effect that varies in time")
+    return {"spread": spread[top], "runs": spread, "summary": summary}

@@ -88,7 +88,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
-                "play": flow.residual.get("play"),
+                "play": flow.residual.get("play"), "wander": flow.residual.get("wander"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
@@ -107,7 +107,8 @@ def redecide(r: dict) -> dict:
         return r
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
-    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed, play=bool(r.get("play")))
+    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
+                    beyond=bool(r.get("play")) or bool(r.get("wander")))
     t = {"kind": r["kind"], "effects": [{"name": n, "params": p} for n, p in
                                         zip(r["truth"].split("+"), r["truth_params"], strict=False)]}  # fmt: skip
     if r["kind"] == "none":
