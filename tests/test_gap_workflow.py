@@ -256,7 +256,7 @@ def test_smoother_measurement_is_the_sensors_rougher_stays_evidence():
     assert stair["repeat"] > 0.5 and noise_offsets([stair], [[f] for f in white], scales) == [{}]
 
 
-def test_lag_like_candidates_take_their_phase_out_of_tau():
+def test_lag_like_candidates_and_a_rate_limit_take_their_phase_out_of_tau():
     from uavsim.gap.workflow import GapEvaluator, candidate_phase
 
     assert candidate_phase("lag", 0.05, 1.0 / (2 * math.pi * 0.05)) == pytest.approx(math.pi / 4)
@@ -271,6 +271,13 @@ def test_lag_like_candidates_take_their_phase_out_of_tau():
     assert ev.tau_shift("delay", 0.01) == 0.0
     assert ev.tau_shift("none", 0.0) == 0.0  # the bare model's episodes of an identified session
     assert GapEvaluator(session, model, {}, 0, 1, 0.001).tau_shift("lag", 0.01) == 0.0
+    # a slew limit turns the relay's +-h square wave into a trapezoid centred h / rate after each switch
+    assert candidate_phase("rate_limit", 40.0, 2.0, h=0.5) == pytest.approx(2 * math.pi * 2.0 * 0.5 / 40.0)
+    assert candidate_phase("rate_limit", 1.0, 2.0, h=0.5) == pytest.approx(math.pi / 2)  # a triangle at most
+    ev_h = GapEvaluator(session, model, {}, 0, 1, 0.001, anchor_hz=2.0, anchor_h=0.5)
+    assert ev_h.tau_shift("rate_limit", 40.0) == pytest.approx(0.5 / 40.0)
+    assert ev_h.tau_shift("rate_limit", 1.0) == pytest.approx(0.02)  # never below tau = 0
+    assert ev.tau_shift("rate_limit", 40.0) == 0.0  # no relay amplitude given: no phase
 
 
 def test_simulated_step_runs_follow_their_derivative():

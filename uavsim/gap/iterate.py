@@ -25,9 +25,9 @@
    (:data:`CLEAN_REMOVAL`): there a gap beyond :data:`NONE_GAP` names the
    candidate that removes :data:`NAME_EXCESS` of what lies beyond a clean
    session's gap, given back what it removes from a clean session
-   (:func:`excess_share`). With an identified base model, a ``lag`` or ``lowpass``
-   candidate takes the phase it adds at the identified cycle out of ``tau``
-   (the identification already put that phase there), and a named one
+   (:func:`excess_share`). With an identified base model, a ``lag``, ``lowpass`` or
+   ``rate_limit`` candidate takes the phase it adds to the identified relay cycle out of
+   ``tau`` (the identification already put that phase there), and a named one
    leaves the shorter ``tau`` in the model.
    An identified model carries the measured noise in its ``noise_std`` (the relay
    run's own), so an added noise source leaves no gap: where that std is over
@@ -603,9 +603,10 @@ def analyse(
         found.append(by_level)
         candidates = tuple(c for c in candidates if c != "noise")
     # an identified model's tau holds the phase of its relay cycle: lag-like candidates take theirs out of it
-    anchor_hz = None
+    anchor_hz, anchor_h = None, 0.0
     if source == "identified" and (ident.get("oscillation") or {}).get("period"):
         anchor_hz = 1.0 / float(ident["oscillation"]["period"])
+        anchor_h = next((float(r.spec.h) for r in session.runs if r.spec.file == ident.get("run") and r.spec.h), 0.0)
     while True:
         cands = tuple(c for c in candidates if c not in {e.name for e in cur.effects})
         if not cands:
@@ -622,6 +623,7 @@ def analyse(
                 name_ratio=PROPOSE_RATIO if source == "identified" else NAME_RATIO,
                 smoother_sensor=source == "identified",
                 phase_anchor_hz=anchor_hz,
+                phase_anchor_h=anchor_h,
                 credit=clean_credit(session.loop) if source == "identified" else None,
                 read_staircase=source == "identified",
                 log=log,

@@ -16,7 +16,8 @@
    value is refined by a parabola through the three best grid points (in the
    parameter's log). Each candidate's score is its remaining gap plus a
    complexity penalty of :data:`PENALTY` per parameter. With an identified
-   model (``phase_anchor_hz``), lag-like candidates take the phase they add at
+   model (``phase_anchor_hz``, ``phase_anchor_h``), lag-like candidates (and a
+   rate limit, whose phase depends on the relay's amplitude) take the phase they add at
    the identified cycle out of its ``tau``; with ``credit`` (what each
    candidate already removes from a clean session), the gap a candidate
    leaves is first given back that much (:func:`credited_gap`).
@@ -97,11 +98,11 @@ def credited_gap(name: str, gap: float, credit: dict[str, float] | None) -> floa
     return math.sqrt(gap * gap + extra) if extra > 0 else gap
 
 
-def candidate_phase(name: str, value: float, freq_hz: float) -> float:
-    """Phase lag, rad, that candidate ``name`` = ``value`` adds at ``freq_hz`` (its vocabulary term's
-    ``phase``; 0 for effects without one and for the bare model, ``none``)."""
+def candidate_phase(name: str, value: float, freq_hz: float, h: float = 0.0) -> float:
+    """Phase lag, rad, that candidate ``name`` = ``value`` adds to a relay cycle at ``freq_hz`` whose relay
+    swings +-``h`` (its vocabulary term's ``phase``; 0 for effects without one and for the bare model, ``none``)."""
     phase = vocabulary.term(name).phase if name in vocabulary.names() else None
-    return 0.0 if phase is None else float(phase(value, freq_hz))
+    return 0.0 if phase is None else float(phase(value, freq_hz, h))
 
 
 class UnflownRun(UserError):
@@ -445,9 +446,9 @@ class GapEvaluator:
     """Simulates a session's runs on candidate models and scores them against its measured features (the gap)."""
 
     def __init__(self, session: Session, model: ModelSpec, base: dict[str, float], seed: int, nthread: int,
-                 dt: float, anchor_hz: float | None = None):
+                 dt: float, anchor_hz: float | None = None, anchor_h: float = 0.0):
         self.session, self.model, self.base, self.seed, self.nthread = session, model, base, seed, nthread
-        self.dt, self.anchor_hz = dt, anchor_hz
+        self.dt, self.anchor_hz, self.anchor_h = dt, anchor_hz, anchor_h
         self.R = len(session.runs)
         self.meas = [run_features(r.spec, r.data.t, r.data.y, r.data.u) for r in session.runs]
         self.scales: list[dict[str, float]] | None = None
@@ -475,7 +476,7 @@ class GapEvaluator:
         if not self.anchor_hz:
             return 0.0
         w = 2 * math.pi * self.anchor_hz
-        return min(candidate_phase(name, value, self.anchor_hz) / w, float(self.model.tau))
+        return min(candidate_phase(name, value, self.anchor_hz, self.anchor_h) / w, float(self.model.tau))
 
     def features(self, sims: list[SimRun]) -> list[dict | None]:
         return [run_features(r.spec, s.t, s.y, s.u) for r, s in zip(self.session.runs, sims, strict=True)]
@@ -552,6 +553,7 @@ def run_gap(
     smoother_sensor: bool = True,
     name_ratio: float = NAME_RATIO,
     phase_anchor_hz: float | None = None,
+    phase_anchor_h: float = 0.0,
     credit: dict[str, float] | None = None,
     read_staircase: bool = False,
     log=None,
@@ -587,9 +589,11 @@ def run_gap(
     phase_anchor_hz : float, optional
         Frequency at which the model's ``tau`` was fitted to a measured cycle
         (an identified model: the relay run's): candidates whose vocabulary term has a ``phase``
-        (``lag``, ``lowpass``) take their phase there out of ``tau`` (down to 0), so that
-        the model keeps the measured phase and only the candidate's shape is
+        (``lag``, ``lowpass``, ``rate_limit``) take their phase there out of ``tau`` (down to 0),
+        so that the model keeps the measured phase and only the candidate's shape is
         tested; a winner's result carries the model with the shorter ``tau``.
+    phase_anchor_h : float
+        That relay run's amplitude ``h`` (command units): a rate limit's phase grows with it.
     credit : dict of str to float, optional
         Per candidate, the squared gap it removes from a clean session of the loop
         (the base model's own misfit, which every session has): candidates are
@@ -617,7 +621,7 @@ def run_gap(
     if model is None:
         raise UserError("the session has no [model] and no --model FILE was given: nothing to compare with")
     model_params(session, model)  # loop support and parameter checks
-    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt, phase_anchor_hz)
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt, phase_anchor_hz, phase_anchor_h)
     for i, (r, f) in enumerate(zip(session.runs, ev.meas, strict=True)):
         if f is None:
             what = "fewer than 3 full relay cycles after the first two" if r.spec.kind != STEP_RUN else "no usable step"

@@ -84,9 +84,11 @@ class SessionTerm:
         The largest value worth fitting at a control rate (values above it act as the cap).
     identity_is_rate : bool
         The identity value is the control rate (a frame rate equal to it holds nothing).
-    phase : callable (value, freq_hz) -> float, optional
-        For a linear effect whose phase a fitted delay can hold: the phase lag (rad) it adds
-        at ``freq_hz``. The gap workflow takes it out of an identified model's ``tau``.
+    phase : callable (value, freq_hz, h) -> float, optional
+        For an effect whose phase a fitted delay can hold: the phase lag (rad) it adds to a
+        relay cycle at ``freq_hz`` whose relay output swings +-``h`` (command units; a linear
+        effect's own phase does not depend on it). Identification from that relay run puts
+        it in the model's ``tau``; the gap workflow takes it out again.
     """
 
     param: str
@@ -98,7 +100,7 @@ class SessionTerm:
     draw: Callable[[np.random.Generator, float, float, float, float, float], dict[str, float]]
     cap: Callable[[float], float] | None = None
     identity_is_rate: bool = False
-    phase: Callable[[float, float], float] | None = None
+    phase: Callable[[float, float, float], float] | None = None
 
     def __post_init__(self) -> None:
         if self.range not in RANGES:

@@ -36,7 +36,7 @@ class Lag(SignalEffect):
         param="T", range=">0", identity=0.0, table=2, chain=3,
         grid=lambda sc, noise_std, rate_hz, n: np.geomspace(0.01 * sc["period"], 0.3 * sc["period"], n),
         draw=lambda rng, period, h, amp, noise_std, rate_hz: {"T": rng.uniform(0.04, 0.12) * period},
-        phase=lambda T, freq_hz: math.atan(2 * math.pi * freq_hz * T),
+        phase=lambda T, freq_hz, h: math.atan(2 * math.pi * freq_hz * T),
     )
     target = "command"
 

@@ -17,8 +17,8 @@ from uavsim.model.effects.base import (
 )
 
 
-def _phase(cutoff_hz: float, freq_hz: float) -> float:
-    """Phase lag, rad, of the (continuous) 2nd-order Butterworth at ``freq_hz``."""
+def _phase(cutoff_hz: float, freq_hz: float, h: float) -> float:
+    """Phase lag, rad, of the (continuous) 2nd-order Butterworth at ``freq_hz`` (any relay amplitude ``h``)."""
     x = freq_hz / cutoff_hz
     return math.atan2(math.sqrt(2.0) * x, 1.0 - x * x)
 

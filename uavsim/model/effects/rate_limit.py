@@ -16,6 +16,13 @@ from uavsim.model.effects.base import (
 )
 
 
+def _phase(rate: float, freq_hz: float, h: float) -> float:
+    """Phase lag, rad, of a relay cycle's fundamental through the limit: the +-``h`` square wave becomes a
+    trapezoid whose ramps take ``2 h / rate`` and centre ``h / rate`` after each switch (a triangle, a
+    quarter period, once the ramps fill the half period)."""
+    return min(2 * math.pi * freq_hz * h / rate, math.pi / 2)
+
+
 def _draw(rng, period, h, amp, noise_std, rate_hz):
     # a full 2*(2h) swing takes 5-15% of the period
     return {"rate": 4 * h / (rng.uniform(0.05, 0.15) * period)}
@@ -32,6 +39,7 @@ class RateLimit(SignalEffect):
         param="rate", range=">0", identity=math.inf, table=6, chain=4,
         grid=lambda sc, noise_std, rate_hz, n: 4 * sc["h_max"] / (np.geomspace(0.01, 0.4, n) * sc["period"]),
         draw=_draw,
+        phase=_phase,
     )
     target = "command"
 
