@@ -19,10 +19,6 @@ edges of the relay output ``u``, which is noise-free):
   autocorrelation of that second difference: low-pass and hold colour it), ``repeat`` (fraction of samples equal to the previous one:
   staircase levels of quantization and sample-and-hold).
 
-Not compared (kept for the workflow's own reads): ``_wave`` (the mean cycle),
-``_cycles`` and ``_period_spread`` (the cycle periods' std over their mean, NaN
-under 4 cycles: how much the cycle wanders, :func:`uavsim.gap.residual.periods_wander`).
-
 Step runs, after ``step_time`` and normalized by the step size:
 ``overshoot``, ``onset`` (log time to 5% of the step), ``rise`` (log 10-90%
 rise time), ``ise`` (log), ``settled`` (mean error over the last 30%),
@@ -110,11 +106,16 @@ def _resid_features(x: np.ndarray, resid: np.ndarray, scale: float) -> dict[str,
     return {"resid": math.log(max(sd / scale, 1e-9)), "ac1": ac1, "repeat": rep}
 
 
+def cycle_edges(hi: np.ndarray) -> np.ndarray:
+    """Sample indices of the relay's rising edges after the first two (the full cycles analysed), from
+    ``hi``, where the relay output is high (``relay_phase(u)``)."""
+    return (np.flatnonzero(hi[1:] & ~hi[:-1]) + 1)[2:]
+
+
 def relay_features(t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
     """Features of a relay run; None when it holds fewer than 3 full cycles after the first two."""
     hi = relay_phase(u)
-    edges = np.flatnonzero(hi[1:] & ~hi[:-1]) + 1
-    edges = edges[2:]
+    edges = cycle_edges(hi)
     if edges.size < 4 or not np.isfinite(y).all():
         return None
     a, b = edges[0], edges[-1]
@@ -152,8 +153,6 @@ def relay_features(t: np.ndarray, y: np.ndarray, u: np.ndarray) -> dict | None:
     f.update(_resid_features(y[a:b], resid, amp))
     f["_wave"] = wn
     f["_cycles"] = nc
-    p = np.diff(t[edges])
-    f["_period_spread"] = float(np.std(p) / np.mean(p)) if p.size >= 4 else math.nan
     return f
 
 

@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.formats.session import STEP_RUN, Session
-from uavsim.gap.features import run_features, step_swings
+from uavsim.gap.features import cycle_edges, run_features, step_swings
 from uavsim.gap.simulate import SimRun
+from uavsim.noise.analysis import relay_phase
 
 __all__ = ["residual_character", "run_residual", "steps_keep_swinging", "periods_wander"]
 
@@ -190,8 +191,8 @@ def periods_wander(session: Session, limit: float) -> dict | None:
     A fixed loop under a relay repeats its cycle; noise jitters each switch, and a
     delay that varies in time (or any effect that does) makes the period wander
     from cycle to cycle, which no vocabulary effect, all of them fixed, flies. The
-    spread is the std of a run's cycle periods over their mean
-    (``uavsim.gap.features``' ``_period_spread``; runs of 4 cycles or more).
+    spread is the std of a run's cycle periods over their mean, over the cycles the
+    features analyse (:func:`uavsim.gap.features.cycle_edges`; runs of 4 cycles or more).
 
     Returns
     -------
@@ -202,9 +203,10 @@ def periods_wander(session: Session, limit: float) -> dict | None:
     for r in session.runs:
         if r.spec.kind == STEP_RUN:
             continue
-        f = run_features(r.spec, r.data.t, r.data.y, r.data.u)
-        if f is not None and math.isfinite(f["_period_spread"]):
-            spread[r.spec.file] = f["_period_spread"]
+        t, u = (np.asarray(v, dtype=np.float64) for v in (r.data.t, r.data.u))
+        p = np.diff(t[cycle_edges(relay_phase(u))])
+        if p.size >= 4:
+            spread[r.spec.file] = float(np.std(p) / np.mean(p))
     if not spread or max(spread.values()) <= limit:
         return None
     top = max(spread, key=spread.get)
