@@ -53,7 +53,8 @@ def score(t: dict, answer: str, found: list[dict], gb: float, ga: float) -> dict
     if kind == "none":
         ok = answer == "none"
     elif kind == "single":
-        ok = got[:1] == names or (answer in ("absorbed", "none") and names[0] in ABSORBABLE)
+        # the effect and nothing else: a second name beside it is a false one
+        ok = got == names or (answer in ("absorbed", "none") and names[0] in ABSORBABLE)
     elif kind == "pair":
         ok = sorted(got) == sorted(names)
         one_of_two = bool(set(got) & set(names))
