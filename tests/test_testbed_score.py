@@ -71,6 +71,6 @@ def test_record_marks_a_saturation_read_off_the_relay_amplitudes(tmp_path, monke
 
 
 def test_a_single_with_a_second_name_beside_it_is_wrong():
-    t = {"kind": "single", "effects": [{"name": "lag", "params": {"T_s": 0.05}}]}
-    assert score.score(t, "named", [{"name": "lag", "T_s": 0.05}], 10.0, 2.0)["ok"]
-    assert not score.score(t, "named", [{"name": "lag", "T_s": 0.05}, {"name": "bias", "b": 0.1}], 10.0, 1.5)["ok"]
+    t = {"kind": "single", "effects": [{"name": "lag", "params": {"T": 0.05}}]}
+    assert score.score(t, "named", [{"name": "lag", "T": 0.05}], 10.0, 2.0)["ok"]
+    assert not score.score(t, "named", [{"name": "lag", "T": 0.05}, {"name": "bias", "offset": 0.1}], 10.0, 1.5)["ok"]
