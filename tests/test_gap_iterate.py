@@ -5,7 +5,6 @@ The decision logic is tested with the single search replaced by a scripted one
 the report run on real features of synthetic relay runs.
 """
 
-import dataclasses
 import json
 import math
 
@@ -56,7 +55,7 @@ def _script(monkeypatch, answers):
 
     def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None, **kw):
         effect, gb, ga = answers[len(calls)]
-        calls.append({"effects": [e.name for e in session.effects], "candidates": candidates, "model": model})
+        calls.append({"effects": [e.name for e in session.effects], "candidates": candidates})
         sims = [_sim(r.data.t, r.data.y, r.data.u) for r in session.runs]
         params = {} if effect == "none" else {"x": 1.0}
         effects = list(session.effects) + ([] if effect == "none" else [EffectSpec(effect, params)])
@@ -545,30 +544,3 @@ def test_a_flow_that_names_nothing_on_wandering_cycles_is_unexplained_on_attitud
     _script(monkeypatch, [("none", 2.0, 2.0)])
     flow = iterate.analyse(_wandering_session(0.08, loop="altitude", period=1.0))
     assert flow.answer == "none" and "wander" not in flow.residual
-
-
-def test_the_base_model_is_refitted_with_a_named_effect_before_the_next_search(monkeypatch):
-    calls = _script(monkeypatch, [("bias", 40.0, 20.0), ("dead_zone", 20.0, 2.0)])
-    refits = []
-
-    def refit(session, model, **kw):
-        refits.append([e.name for e in session.effects])
-        if not session.effects:
-            return _no_refit(session, model)
-        moved = dataclasses.replace(model, K=2.0 * model.K)
-        return RefitResult(model=moved, start=model, gap_before=3.0, gap_after=2.0, moved={**dict.fromkeys(PARAMS, 1.0),
-                           "K": 2.0}, accepted=True, iterations=1, episodes=1, seconds=0.0)  # fmt: skip
-
-    monkeypatch.setattr(iterate, "refit_base", refit)
-    flow = iterate.analyse(_identified(monkeypatch, 0.0), max_effects=2, refit_between=True)
-    assert refits == [[], ["bias"]]  # once before the search, once with the named bias; none after the last
-    assert calls[0]["model"].K == 1.0 and calls[1]["model"].K == 2.0
-    assert [e.name for e in flow.found] == ["bias", "dead_zone"]
-    assert flow.refits_between[0]["after"] == "bias" and flow.refits_between[0]["accepted"]
-    assert flow.to_json()["refits_between"][0]["gap_after"] == 2.0
-
-    refits.clear()
-    calls = _script(monkeypatch, [("bias", 40.0, 20.0), ("dead_zone", 20.0, 2.0)])
-    monkeypatch.setattr(iterate, "refit_base", refit)
-    flow = iterate.analyse(_identified(monkeypatch, 0.0), max_effects=2, refit_between=False)
-    assert refits == [[]] and calls[1]["model"].K == 1.0 and flow.refits_between == []

@@ -24,7 +24,7 @@ class _Flow:
     steps = [SimpleNamespace(ranking=[])]
 
     def to_json(self):
-        return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "from_samples": [], "steps": [], "refits_between": [],
+        return {"found": [{"name": "noise", "std": 2.6e-4}], "by_level": ["noise"], "from_samples": [], "steps": [],
                 "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=2.6e-4)}  # fmt: skip
 
 
@@ -50,7 +50,7 @@ def _record_of_a_read(tmp_path, monkeypatch, truth: dict, found: dict, evidence:
     flow = _Flow()
     flow.to_json = lambda: {"found": [found], "by_level": [],
                             "from_samples": [{**found, "evidence": evidence, "gap_without": 20.0, "gap_with": 4.0}],
-                            "steps": [], "refits_between": [], "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
+                            "steps": [], "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
     monkeypatch.setattr(score, "read_session", lambda f: None)
     monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
     return score.one(folder, None, "identified", 0)

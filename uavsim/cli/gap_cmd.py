@@ -38,9 +38,6 @@ def register(subparsers) -> None:
     p.add_argument("--screen-classes", action="store_true",
                    help="identified base model: start its refit from the network class whose model, fitted to the "
                         "same cycle, flies the runs best (lower base gaps; the naming thresholds were set without it)")
-    p.add_argument("--refit-between", action="store_true",
-                   help="identified base model: refit it with a named effect in the loop before the next search "
-                        "(without: the refit is made once, before the first)")
     p.set_defaults(func=main)
 
 
@@ -51,7 +48,7 @@ def main(args: argparse.Namespace) -> int:
     session = read_session(args.session)
     model = read_model_file(args.model, session.loop) if args.model else None
     flow = analyse(session, model, models=args.models, seed=args.seed, max_effects=args.max_effects,
-                   screen=args.screen_classes, refit_between=args.refit_between, log=eprint)
+                   screen=args.screen_classes, log=eprint)
     if args.report:
         from uavsim.gap.overlay import write_flow_report
 

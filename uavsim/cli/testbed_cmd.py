@@ -61,9 +61,6 @@ def register(subparsers) -> None:
     c.add_argument("--summarize", action="store_true", help="print the tables of a --log file given as SET")
     c.add_argument("--screen-classes", action="store_true",
                    help="identified base models: refit from the best-flying class (`uavsim gap --screen-classes`)")
-    c.add_argument("--refit-between", action="store_true",
-                   help="identified base models: refitted with a named effect before the next search "
-                        "(`uavsim gap --refit-between`)")
     c.set_defaults(func=score)
 
 
@@ -183,6 +180,6 @@ def score(args: argparse.Namespace) -> int:
         return 0
     conditions = parse_conditions(args.conditions)
     records = score_set(args.set, models=args.models, conditions=conditions, log=args.log, seed=args.seed,
-                        nthread=args.threads, screen=args.screen_classes, refit_between=args.refit_between)
+                        nthread=args.threads, screen=args.screen_classes)
     print(summary(records))
     return 0

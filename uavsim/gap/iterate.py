@@ -20,9 +20,7 @@
    exclude: :func:`uavsim.gap.workflow.ruled_out`); when the best removes at least
    :data:`NAME_SHARE` of the gap it is added to the model's effects and the
    search runs again on what is left, up to :data:`MAX_EFFECTS` effects
-   (:func:`accepts`); with ``refit_between`` an identified base model is refitted with
-   the named effect in the loop before the next search (the first refit bent part of
-   the effect's doing into the model). An identified base model has its own misfit, which a
+   (:func:`accepts`). An identified base model has its own misfit, which a
    clean session shows (:data:`CLEAN_GAP`) and some candidates partly remove
    (:data:`CLEAN_REMOVAL`): there a gap beyond :data:`NONE_GAP` names the
    candidate that removes :data:`NAME_EXCESS` of what lies beyond a clean
@@ -228,9 +226,6 @@ class FlowResult:
         :func:`uavsim.gap.workflow.read_off_samples`) or ``relay amplitudes`` (a saturation or a dead zone,
         :func:`uavsim.gap.workflow.read_off_relays`); the gaps are the refitted base model's
         without and with it.
-    refits_between : list of dict
-        Per refit of the base model after a named effect (``refit_between``): ``{"after", "accepted",
-        "gap_before", "gap_after", "moved"}``; an accepted one is the model the next search started from.
     sims_before : list of SimRun
         Per run, the base model's simulation (seed 0) without the effects read off the samples (the
         first search's ``sims_before`` when none was read): the report's "before".
@@ -254,7 +249,6 @@ class FlowResult:
     by_level: list[str] = field(default_factory=list)
     from_samples: list[dict] = field(default_factory=list)
     sims_before: list = field(default_factory=list, repr=False)
-    refits_between: list[dict] = field(default_factory=list)
 
     @property
     def final(self) -> GapResult:
@@ -273,7 +267,6 @@ class FlowResult:
                 "found": [{"name": e.name, **e.params} for e in self.found],
                 "by_level": list(self.by_level),
                 "from_samples": [dict(d) for d in self.from_samples],
-                "refits_between": [dict(d) for d in self.refits_between],
                 "gap_before": self.gap_before,
                 "gap_after": self.gap_after,
                 "base_source": self.base_source,
@@ -510,7 +503,6 @@ def analyse(
     candidates: tuple[str, ...] = CANDIDATES,
     refit: bool = True,
     screen: bool = False,
-    refit_between: bool = False,
     log=None,
 ) -> FlowResult:
     """Run the gap workflow as a user has it: base model, dead runs, effects one by one, the residual.
@@ -536,13 +528,6 @@ def analyse(
         flies the runs best (:func:`class_starts`). Off by default: it lowers the base model's
         gap, and the naming thresholds (:data:`CLEAN_GAP`, :data:`CLEAN_REMOVAL`) were set
         without it (docs/results/gap-workflow.md).
-    refit_between : bool
-        With an identified, refitted base model: after a search names an effect and another may
-        follow, refit the base model with that effect in the loop (:func:`uavsim.gap.refit.refit_base`),
-        and start the next search from the refit when it flies the runs better. The first refit was
-        made without the effect, so the model bent part of the effect's doing into ``K``, the lags
-        and ``tau``; a second search from that model sees the misfit, not the second effect.
-        Off by default until it is shown to name more pairs (docs/results/gap-workflow.md).
     log : callable(str), optional
         Progress messages (the base model's source is always logged).
 
@@ -607,7 +592,6 @@ def analyse(
                     f"flies the runs at gap {fit_s.gap:.3f}, without it at {fit.gap:.3f}")  # fmt: skip
         model = fit.model
     steps: list[GapResult] = []
-    refits_between: list[dict] = []
     cur, cur_model = live, model
     by_level = None
     if source == "identified":
@@ -677,15 +661,6 @@ def analyse(
         cur = dataclasses.replace(cur, model=cur_model, effects=list(res.effects))
         if len(found) >= max_effects:
             break
-        if source == "identified" and refit and refit_between:
-            fit_b = refit_base(cur, cur_model, seed=seed, nthread=nthread, log=log)
-            refits_between.append({"after": res.effect, "accepted": fit_b.accepted, "gap_before": fit_b.gap_before,
-                                   "gap_after": fit_b.gap_after, "moved": dict(fit_b.moved)})  # fmt: skip
-            if fit_b.accepted:
-                log(f"base model refitted with {res.effect} in the loop: gap {fit_b.gap_before:.3f} -> "
-                    f"{fit_b.gap_after:.3f}; the next search starts from it")  # fmt: skip
-                cur_model = fit_b.model
-                cur = dataclasses.replace(cur, model=cur_model)
     gap_before = steps[0].gap_before if gap_without is None else gap_without
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
@@ -704,8 +679,7 @@ def analyse(
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
                       by_level=[by_level.name] if by_level is not None else [],
-                      from_samples=from_samples, sims_before=sims_without or steps[0].sims_before,
-                      refits_between=refits_between)  # fmt: skip
+                      from_samples=from_samples, sims_before=sims_without or steps[0].sims_before)  # fmt: skip
 
 
 def _params_text(e: EffectSpec) -> str:

@@ -68,8 +68,7 @@ def score(t: dict, answer: str, found: list[dict], gb: float, ga: float) -> dict
     return {"ok": bool(ok), "one_of_two": one_of_two, "param_rel_err": err, "gap_ratio": ratio}
 
 
-def one(folder: Path, models: str | None, condition: str, seed: int, nthread: int = 0, screen: bool = False,
-        refit_between: bool = False) -> dict:
+def one(folder: Path, models: str | None, condition: str, seed: int, nthread: int = 0, screen: bool = False) -> dict:
     t = json.loads(Path(str(folder) + ".truth.json").read_text())
     rec = {"name": t["name"], "condition": condition, "kind": t["kind"], "loop": t["loop"], "truth": truth_label(t),
            "truth_params": [e["params"] for e in t["effects"]]}  # fmt: skip
@@ -80,15 +79,13 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
         if condition == "true":
             lm = t["lumped"]
             model = ModelSpec(K=lm["K"], T_prop=lm["T_prop"], T1=lm["T1"], tau=lm["tau"], noise_std=lm["noise_std"])
-        flow = analyse(session, model, models=models, seed=seed, nthread=nthread, screen=screen,
-                       refit_between=refit_between)
+        flow = analyse(session, model, models=models, seed=seed, nthread=nthread, screen=screen)
     except UserError as exc:
         rec.update({"answer": "error", "error": str(exc), "ok": False, "seconds": time.perf_counter() - t0})
         return rec
     j = flow.to_json()
     rec.update({"answer": flow.answer, "found": j["found"], "by_level": j["by_level"],
                 "from_samples": [d["name"] for d in j["from_samples"]],
-                "refits_between": j["refits_between"],
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
@@ -190,13 +187,11 @@ def summarize_log(path: str | Path) -> str:
 
 
 def score_set(folder: str | Path, *, models: str | None = None, conditions: tuple[str, ...] = CONDITIONS,
-              log: str | Path | None = None, seed: int = 0, nthread: int = 0, screen: bool = False,
-              refit_between: bool = False) -> list[dict]:
+              log: str | Path | None = None, seed: int = 0, nthread: int = 0, screen: bool = False) -> list[dict]:
     """Run and score every session of a ``uavsim testbed sessions`` folder under each condition.
 
     One record per session and condition (appended to ``log`` as a JSON line as soon as it is done).
-    ``screen``: identified base models refitted from the best-flying class (``analyse``'s ``screen``);
-    ``refit_between``: refitted again with each named effect before the next search (``analyse``'s).
+    ``screen``: identified base models refitted from the best-flying class (``analyse``'s ``screen``).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -210,7 +205,7 @@ def score_set(folder: str | Path, *, models: str | None = None, conditions: tupl
     records = []
     for cond in conditions:
         for f in folders:
-            r = one(f, models, cond, seed, nthread, screen, refit_between)
+            r = one(f, models, cond, seed, nthread, screen)
             records.append(r)
             print(f"{cond} {r['name']} {r['truth']} -> {r['answer']} {[x['name'] for x in r.get('found') or []]} "
                   f"({r['seconds']:.0f} s)", file=sys.stderr, flush=True)  # fmt: skip
