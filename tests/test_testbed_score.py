@@ -74,3 +74,16 @@ def test_a_single_with_a_second_name_beside_it_is_wrong():
     t = {"kind": "single", "effects": [{"name": "lag", "params": {"T": 0.05}}]}
     assert score.score(t, "named", [{"name": "lag", "T": 0.05}], 10.0, 2.0)["ok"]
     assert not score.score(t, "named", [{"name": "lag", "T": 0.05}, {"name": "bias", "offset": 0.1}], 10.0, 1.5)["ok"]
+
+
+def test_summary_scores_the_constant_answers_on_the_same_truths():
+    recs = [{"name": "tb_1", "condition": "identified", "kind": "none", "loop": "roll", "truth": "none",
+             "answer": "named", "found": [{"name": "bias", "offset": 0.1}], "gap_before": 9.0, "gap_after": 2.0,
+             "ok": False, "seconds": 50.0},
+            {"name": "tb_2", "condition": "identified", "kind": "single", "loop": "roll", "truth": "lag",
+             "truth_params": [{"T": 0.05}], "answer": "none", "found": [], "gap_before": 3.0, "gap_after": 3.0,
+             "ok": True, "seconds": 50.0},
+            {"name": "tb_3", "condition": "identified", "kind": "outside", "loop": "roll", "truth": "backlash",
+             "answer": "none", "found": [], "gap_before": 3.0, "gap_after": 3.0, "ok": False, "seconds": 50.0}]  # fmt: skip
+    assert score.controls(recs) == {"none": 2, "unexplained": 1}  # a linear single counts as absorbed under none
+    assert "controls on the same truths: always none 2/3, always unexplained 1/3" in score.summary(recs)

@@ -110,11 +110,22 @@ def redecide(r: dict) -> dict:
     absorbed = absorbed_by(ident) if ident else None
     answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
                     beyond=bool(r.get("play")) or bool(r.get("wander")))
-    t = {"kind": r["kind"], "effects": [{"name": n, "params": p} for n, p in
-                                        zip(r["truth"].split("+"), r["truth_params"], strict=False)]}  # fmt: skip
-    if r["kind"] == "none":
-        t["effects"] = []
+    t = truth_of(r)
     return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
+
+
+def truth_of(r: dict) -> dict:
+    """The truth file's ``kind`` and ``effects`` rebuilt from a logged record (parameters empty where not logged)."""
+    if r["kind"] == "none":
+        return {"kind": "none", "effects": []}
+    names = r["truth"].split("+")
+    params = r.get("truth_params") or [{}] * len(names)
+    return {"kind": r["kind"], "effects": [{"name": n, "params": p} for n, p in zip(names, params, strict=False)]}
+
+
+def controls(records: list[dict]) -> dict[str, int]:
+    """How many of ``records`` a constant answer gets right: ``{"none": n, "unexplained": n}`` (the same scoring)."""
+    return {a: sum(score(truth_of(r), a, [], 1.0, 1.0)["ok"] for r in records) for a in ("none", "unexplained")}
 
 
 KINDS = ("none", "single", "pair", "outside")
@@ -162,6 +173,9 @@ def summary(records: list[dict]) -> str:
                    f"gap after/before <= 1/3 when a single is named: {sum(x <= 1 / 3 for x in ratios)}/{len(ratios)} "
                    f"({', '.join(f'{x:.2f}' for x in ratios)}); "
                    f"seconds per session: mean {np.mean(secs):.0f}, max {np.max(secs):.0f}")
+        c = controls(rs)
+        out.append(f"controls on the same truths: always none {c['none']}/{len(rs)}, "
+                   f"always unexplained {c['unexplained']}/{len(rs)}")
     return "\n".join(out)
 
 
