@@ -544,3 +544,50 @@ def test_a_flow_that_names_nothing_on_wandering_cycles_is_unexplained_on_attitud
     _script(monkeypatch, [("none", 2.0, 2.0)])
     flow = iterate.analyse(_wandering_session(0.08, loop="altitude", period=1.0))
     assert flow.answer == "none" and "wander" not in flow.residual
+
+
+def _ringing_session(third: float, loop: str = "pitch", period: float = 0.25, cycles: int = 16) -> Session:
+    """One relay run whose output carries a third harmonic of ``third`` of its fundamental's size."""
+    t = np.arange(int(cycles * period * RATE)) / RATE
+    phi = 2 * np.pi * t / period
+    u = np.where(np.sin(phi) >= 0, 1.0, -1.0)
+    spec = RunSpec("r0.csv", "np-mrft", beta=-0.73, h=1.0, tau_obs=0.0, a_n=0.0)
+    y = -np.cos(phi) - third * np.cos(3 * phi)
+    run = Run(spec, RunData(t, np.zeros_like(t), y, u))
+    return Session(loop, RATE, [run], model=ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0))
+
+
+def test_a_third_harmonic_passed_beyond_the_model_is_read_off_the_relay_runs():
+    from uavsim.gap.residual import third_harmonic_rise
+
+    model_run = _ringing_session(0.03).runs[0].data
+    sims = [_sim(model_run.t, model_run.y, model_run.u)]
+    # the measured third harmonic twice the model's: the loop passes it x2 more (over the fundamental)
+    r = third_harmonic_rise(_ringing_session(0.06), sims, 1.16)
+    assert r is not None and r["rise"] == pytest.approx(2.0, rel=0.05) and r["runs"] == {"r0.csv": r["rise"]}
+    assert "third harmonic" in r["summary"]
+    # the model's own harmonic, or less of it (a low-pass the model lacks), rises nothing; the limit is the caller's
+    assert third_harmonic_rise(_ringing_session(0.03), sims, 1.16) is None
+    assert third_harmonic_rise(_ringing_session(0.01), sims, 1.16) is None
+    assert third_harmonic_rise(_ringing_session(0.06), sims, 2.5) is None
+
+
+def test_a_flow_that_names_nothing_on_ringing_cycles_is_unexplained(monkeypatch):
+    def script(session, **kw):
+        # the model's cycle: the same period, a third harmonic of 0.03 of the fundamental
+        m = _ringing_session(0.03, period=session.runs[0].data.t.size / RATE / 16).runs[0].data
+        sims = [_sim(m.t, m.y, m.u)]
+        return GapResult("none", {}, 2.0, 2.0, [], [], session.model, list(session.effects), 0, 0.1,
+                         sims_before=sims, sims_after=sims)  # fmt: skip
+
+    monkeypatch.setattr(iterate, "run_gap", script)
+    monkeypatch.setattr(iterate, "refit_base", _no_refit)
+    flow = iterate.analyse(_ringing_session(0.06))
+    assert flow.answer == "unexplained" and flow.residual["ring"]["rise"] == pytest.approx(2.0, rel=0.05)
+    assert flow.residual["summary"].startswith("the loop passes its third harmonic")
+    # not read on altitude (its camera's noise spreads the harmonic), but kept in the residual
+    flow = iterate.analyse(_ringing_session(0.06, loop="altitude", period=1.0))
+    assert iterate.THIRD_RISE["altitude"] is None and flow.answer == "none" and "ring" not in flow.residual
+    assert flow.residual["third_rise"] == pytest.approx(2.0, rel=0.05)
+    flow = iterate.analyse(_ringing_session(0.03))
+    assert flow.answer == "none" and "ring" not in flow.residual

@@ -26,7 +26,7 @@ from uavsim.gap.features import cycle_edges, run_features, step_swings
 from uavsim.gap.simulate import SimRun
 from uavsim.noise.analysis import relay_phase
 
-__all__ = ["residual_character", "run_residual", "steps_keep_swinging", "periods_wander"]
+__all__ = ["residual_character", "run_residual", "steps_keep_swinging", "periods_wander", "third_harmonic_rise"]
 
 #: harmonics of the mean cycle examined (1 = the fundamental)
 HARMONICS = (1, 2, 3, 4, 5)
@@ -213,3 +213,40 @@ def periods_wander(session: Session, limit: float) -> dict | None:
     summary = (f"the relay cycles' period wanders by {spread[top]:.1%} (std over mean) in {Path(top).stem}, over "
                f"the {limit:.1%} a fixed loop's jitter stays within: an effect that varies in time")
     return {"spread": spread[top], "runs": spread, "summary": summary}
+
+
+def third_harmonic_rise(session: Session, sims: Sequence[SimRun], limit: float) -> dict | None:
+    """The relay runs' third-harmonic rise over the model's when one of them exceeds ``limit`` (a factor), else None.
+
+    Under a relay the loop's gain at the cycle's third harmonic over its gain at the
+    fundamental, ``|G(3jw) / G(jw)|``, is read off each run (the output's harmonics over
+    the relay's: ``r3mag`` of :func:`uavsim.gap.features.relay_features`). A lightly damped
+    mode above the cycle (a resonance) passes the third harmonic more than the lumped
+    model's lags do; every vocabulary effect is memoryless, a delay, or low-pass, and
+    leaves the ratio where the model's lags put it or lower. The rise is the measured
+    log ratio minus the model's (``sims``: one simulation per run), per relay run.
+
+    Returns
+    -------
+    dict or None
+        ``{"rise"}`` (the largest, as a factor), ``runs`` (file -> factor) and ``summary`` (words for
+        the residual's).
+    """
+    rise = {}
+    for r, s in zip(session.runs, sims, strict=True):
+        if r.spec.kind == STEP_RUN or s.diverged:
+            continue
+        fm = run_features(r.spec, r.data.t, r.data.y, r.data.u)
+        fs = run_features(r.spec, s.t, s.y, s.u)
+        if fm is None or fs is None:
+            continue
+        d = float(fm["r3mag"] - fs["r3mag"])
+        if math.isfinite(d):
+            rise[r.spec.file] = math.exp(d)
+    if not rise or max(rise.values()) <= limit:
+        return None
+    top = max(rise, key=rise.get)
+    summary = (f"the loop passes its third harmonic x{rise[top]:.2f} more than the model's (over the fundamental) "
+               f"in {Path(top).stem}, beyond the x{limit:.2f} a clean loop stays within: a lightly damped "
+               "mode above the cycle (a resonance)")
+    return {"rise": rise[top], "runs": rise, "summary": summary}

@@ -90,6 +90,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
                 "play": flow.residual.get("play"), "wander": flow.residual.get("wander"),
+                "ring": flow.residual.get("ring"), "third_rise": flow.residual.get("third_rise"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
@@ -109,7 +110,7 @@ def redecide(r: dict) -> dict:
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
     answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
-                    beyond=bool(r.get("play")) or bool(r.get("wander")))
+                    beyond=any(bool(r.get(k)) for k in ("play", "wander", "ring")))
     t = truth_of(r)
     return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
 
