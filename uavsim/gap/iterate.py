@@ -198,9 +198,9 @@ PERIOD_SPREAD: dict[str, float | None] = {"altitude": None, "attitude": 0.029}
 #: ``|G(3jw) / G(jw)|``, the largest of a session's relay runs: :func:`uavsim.gap.residual.third_harmonic_rise`)
 #: beyond which an answer that named nothing is ``unexplained`` (a lightly damped mode); None: never.
 #: Attitude: in the log midway between the largest of the development sessions that named nothing
-#: without an effect outside the vocabulary (x1.18, a clean pitch session of seed 110063; the 40 others
+#: without an effect outside the vocabulary (x1.18, a clean pitch session of seed 110063; the 30 others
 #: of seeds 140000-140063 and 110000-130063 at most x1.11) and the least of the resonances answered
-#: ``none`` (x1.21; the others x1.30, x1.48): a narrow margin. Not on altitude: the camera's noise
+#: ``none`` without the rule (x1.21; the others x1.25, x1.30, x1.48): a narrow margin. Not on altitude: the camera's noise
 #: spreads the harmonic read off its cycles, clean sessions reaching x2.66 and a lag single x1.94, beside
 #: its backlash's x1.48 and its resonance's x2.03 (docs/results/gap-workflow.md)
 THIRD_RISE: dict[str, float | None] = {"altitude": None, "attitude": 1.20}
