@@ -200,9 +200,10 @@ PERIOD_SPREAD: dict[str, float | None] = {"altitude": None, "attitude": 0.029}
 #: Attitude: in the log midway between the largest of the development sessions that named nothing
 #: without an effect outside the vocabulary (x1.18, a clean pitch session of seed 110063; the 30 others
 #: of seeds 140000-140063 and 110000-130063 at most x1.11) and the least of the resonances answered
-#: ``none`` without the rule (x1.21; the others x1.25, x1.30, x1.48): a narrow margin. Not on altitude: the camera's noise
-#: spreads the harmonic read off its cycles, clean sessions reaching x2.66 and a lag single x1.94, beside
-#: its backlash's x1.48 and its resonance's x2.03 (docs/results/gap-workflow.md)
+#: ``none`` without the rule (x1.21; the others x1.25, x1.30, x1.48): a narrow margin. Not on
+#: altitude: the camera's noise spreads the harmonic read off its cycles, clean sessions reaching x2.66
+#: and a lag single x1.94, beside its backlash's x1.48 and its resonance's x2.03
+#: (docs/results/gap-workflow.md)
 THIRD_RISE: dict[str, float | None] = {"altitude": None, "attitude": 1.20}
 #: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
 READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
@@ -685,10 +686,10 @@ def analyse(
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
-    limit, rise = PERIOD_SPREAD[family(session.loop)], THIRD_RISE[family(session.loop)]
+    limit, ring_limit = PERIOD_SPREAD[family(session.loop)], THIRD_RISE[family(session.loop)]
     beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None,
               "wander": periods_wander(live, limit) if limit is not None else None,
-              "ring": third_harmonic_rise(live, final.sims_after, rise) if rise is not None else None}
+              "ring": third_harmonic_rise(live, final.sims_after, ring_limit) if ring_limit is not None else None}
     # the rise is kept whether or not it is beyond the limit: the limit is set on logged sessions
     residual["third_rise"] = (third_harmonic_rise(live, final.sims_after, 0.0) or {}).get("rise")
     for key, sign in beyond.items():
