@@ -49,14 +49,15 @@ def _sim(t, y, u):
     return SimRun(t, np.zeros_like(t), y, u, False)
 
 
-def _script(monkeypatch, answers):
-    """Replace run_gap by a scripted search: answers[k] = (effect, gap_before, gap_after) of search k."""
+def _script(monkeypatch, answers, sims_of=None):
+    """Replace run_gap by a scripted search: answers[k] = (effect, gap_before, gap_after) of search k;
+    its simulated runs are the measured ones, or ``sims_of(session)``."""
     calls = []
 
     def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None, **kw):
         effect, gb, ga = answers[len(calls)]
         calls.append({"effects": [e.name for e in session.effects], "candidates": candidates})
-        sims = [_sim(r.data.t, r.data.y, r.data.u) for r in session.runs]
+        sims = sims_of(session) if sims_of else [_sim(r.data.t, r.data.y, r.data.u) for r in session.runs]
         params = {} if effect == "none" else {"x": 1.0}
         effects = list(session.effects) + ([] if effect == "none" else [EffectSpec(effect, params)])
         ranking = [{"effect": effect, "params": params, "gap": ga, "score": ga}]
@@ -558,30 +559,31 @@ def _ringing_session(third: float, loop: str = "pitch", period: float = 0.25, cy
 
 
 def test_a_third_harmonic_passed_beyond_the_model_is_read_off_the_relay_runs():
-    from uavsim.gap.residual import third_harmonic_rise
+    from uavsim.gap.residual import residual_character, third_harmonic_rise
 
     model_run = _ringing_session(0.03).runs[0].data
     sims = [_sim(model_run.t, model_run.y, model_run.u)]
+
+    def rise(third: float, limit: float) -> dict | None:
+        return third_harmonic_rise(residual_character(_ringing_session(third), sims), limit)
+
     # the measured third harmonic twice the model's: the loop passes it x2 more (over the fundamental)
-    r = third_harmonic_rise(_ringing_session(0.06), sims, 1.16)
+    r = rise(0.06, 1.16)
     assert r is not None and r["rise"] == pytest.approx(2.0, rel=0.05) and r["runs"] == {"r0.csv": r["rise"]}
     assert "third harmonic" in r["summary"]
     # the model's own harmonic, or less of it (a low-pass the model lacks), rises nothing; the limit is the caller's
-    assert third_harmonic_rise(_ringing_session(0.03), sims, 1.16) is None
-    assert third_harmonic_rise(_ringing_session(0.01), sims, 1.16) is None
-    assert third_harmonic_rise(_ringing_session(0.06), sims, 2.5) is None
+    assert rise(0.03, 1.16) is None
+    assert rise(0.01, 1.16) is None
+    assert rise(0.06, 2.5) is None
 
 
 def test_a_flow_that_names_nothing_on_ringing_cycles_is_unexplained(monkeypatch):
-    def script(session, **kw):
+    def model_cycle(session):
         # the model's cycle: the same period, a third harmonic of 0.03 of the fundamental
         m = _ringing_session(0.03, period=session.runs[0].data.t.size / RATE / 16).runs[0].data
-        sims = [_sim(m.t, m.y, m.u)]
-        return GapResult("none", {}, 2.0, 2.0, [], [], session.model, list(session.effects), 0, 0.1,
-                         sims_before=sims, sims_after=sims)  # fmt: skip
+        return [_sim(m.t, m.y, m.u)]
 
-    monkeypatch.setattr(iterate, "run_gap", script)
-    monkeypatch.setattr(iterate, "refit_base", _no_refit)
+    _script(monkeypatch, [("none", 2.0, 2.0)] * 3, sims_of=model_cycle)
     flow = iterate.analyse(_ringing_session(0.06))
     assert flow.answer == "unexplained" and flow.residual["ring"]["rise"] == pytest.approx(2.0, rel=0.05)
     assert flow.residual["summary"].startswith("the loop passes its third harmonic")

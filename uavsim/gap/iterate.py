@@ -126,6 +126,7 @@ __all__ = [
     "excess_share",
     "noise_by_level",
     "NOISE_STD",
+    "BEYOND",
 ]
 
 #: most effects added one after the other
@@ -205,6 +206,10 @@ PERIOD_SPREAD: dict[str, float | None] = {"altitude": None, "attitude": 0.029}
 #: and a lag single x1.94, beside its backlash's x1.48 and its resonance's x2.03
 #: (docs/results/gap-workflow.md)
 THIRD_RISE: dict[str, float | None] = {"altitude": None, "attitude": 1.20}
+#: what the runs may show that no vocabulary effect flies, each making an answer that named nothing
+#: ``unexplained`` (``FlowResult.residual``'s keys, as logged): steps that hunt, relay periods that
+#: wander, a third harmonic the loop passes beyond the model's
+BEYOND = ("play", "wander", "ring")
 #: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
 READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
 
@@ -233,9 +238,9 @@ class FlowResult:
         ``{"parameter", "identified", "class", "moved_s", "effects"}``: the linear
         effects the identified model may have absorbed and the parameter they moved.
     residual : dict
-        :func:`uavsim.gap.residual.residual_character` of what the final model leaves, with ``play``,
-        ``wander`` and ``ring`` where the runs show them (module docstring, step 4) and ``third_rise``
-        (:func:`uavsim.gap.residual.third_harmonic_rise`'s largest factor, None without a readable run).
+        :func:`uavsim.gap.residual.residual_character` of what the final model leaves (its ``third_rise``
+        kept whether or not it is beyond :data:`THIRD_RISE`), with :data:`BEYOND`'s ``play``, ``wander``
+        and ``ring`` where the runs show them (module docstring, step 4).
     gap_before, gap_after : float
         The base model's gap and the final model's.
     by_level : list of str
@@ -689,9 +694,7 @@ def analyse(
     limit, ring_limit = PERIOD_SPREAD[family(session.loop)], THIRD_RISE[family(session.loop)]
     beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None,
               "wander": periods_wander(live, limit) if limit is not None else None,
-              "ring": third_harmonic_rise(live, final.sims_after, ring_limit) if ring_limit is not None else None}
-    # the rise is kept whether or not it is beyond the limit: the limit is set on logged sessions
-    residual["third_rise"] = (third_harmonic_rise(live, final.sims_after, 0.0) or {}).get("rise")
+              "ring": third_harmonic_rise(residual, ring_limit) if ring_limit is not None else None}
     for key, sign in beyond.items():
         if sign is not None:
             residual[key] = sign

@@ -66,7 +66,10 @@ def run_residual(spec, t: np.ndarray, y_meas: np.ndarray, u_meas: np.ndarray, si
         ``file``, ``kind``, ``h``, ``beta``, ``size`` (RMS of the residual over the measured
         amplitude, or over the step for steps), ``amp_ratio`` and ``period_ratio`` (measured
         over simulated, relay runs), ``where`` and ``phase`` (where the mean cycles differ
-        most), ``harmonics`` (k -> |C_meas - C_sim| over the fundamental's size, relay runs).
+        most), ``harmonics`` (k -> |C_meas - C_sim| over the fundamental's size, relay runs),
+        ``third_rise`` (the loop's ``|G(3jw) / G(jw)|`` read off the measured run over the same read
+        off the simulation, relay runs; None where either read is undefined:
+        :func:`third_harmonic_rise`).
     """
     out: dict = {"file": spec.file, "kind": spec.kind, "h": None if spec.h is None else float(spec.h),
                  "beta": None if spec.beta is None else float(spec.beta)}  # fmt: skip
@@ -102,6 +105,7 @@ def run_residual(spec, t: np.ndarray, y_meas: np.ndarray, u_meas: np.ndarray, si
         phase=phase,
         where=_where(phase, float(fm["duty"])),
         harmonics={h: float(abs(cm[h] - cs[h]) / c1) for h in HARMONICS if h < cm.size},
+        third_rise=math.exp(d3) if math.isfinite(d3 := float(fm["r3mag"] - fs["r3mag"])) else None,
     )
     return out
 
@@ -114,7 +118,7 @@ def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
     dict
         ``runs`` (list of :func:`run_residual` dicts), ``carried_by`` (indices of the relay runs
         holding at least :data:`RUN_SHARE` of the relay runs' residual, then the same for steps), ``harmonics`` (the two largest,
-        over those runs), ``summary`` (str).
+        over those runs), ``third_rise`` (the largest of the relay runs', None without one), ``summary`` (str).
     """
     runs = [
         run_residual(r.spec, r.data.t, r.data.y, r.data.u, s)
@@ -149,7 +153,9 @@ def residual_character(session: Session, sims: Sequence[SimRun]) -> dict:
     summary = "; ".join(parts) or "no run departs"
     if top:
         summary += "; largest in harmonics " + ", ".join(str(h) for h in top)
-    return {"runs": runs, "carried_by": carried, "harmonics": top, "summary": summary}
+    rises = [r["third_rise"] for r in runs if r.get("third_rise") is not None]
+    return {"runs": runs, "carried_by": carried, "harmonics": top, "third_rise": max(rises, default=None),
+            "summary": summary}
 
 
 def steps_keep_swinging(session: Session) -> dict | None:
@@ -215,7 +221,7 @@ def periods_wander(session: Session, limit: float) -> dict | None:
     return {"spread": spread[top], "runs": spread, "summary": summary}
 
 
-def third_harmonic_rise(session: Session, sims: Sequence[SimRun], limit: float) -> dict | None:
+def third_harmonic_rise(residual: dict, limit: float) -> dict | None:
     """The relay runs' third-harmonic rise over the model's when one of them exceeds ``limit`` (a factor), else None.
 
     Under a relay the loop's gain at the cycle's third harmonic over its gain at the
@@ -226,7 +232,8 @@ def third_harmonic_rise(session: Session, sims: Sequence[SimRun], limit: float) 
     zero without a resonance: a model that took a delay or a low-pass into its lags
     passes less of the third harmonic than the loop (testbed attitude sessions: a delay
     x1.11, a low-pass x1.34), so the limit is set on sessions. The rise is the measured
-    ratio over the model's (``sims``: one simulation per run), per relay run.
+    ratio over the model's, per relay run, as :func:`residual_character` (``residual``)
+    read it against the model's simulation.
 
     Returns
     -------
@@ -234,17 +241,7 @@ def third_harmonic_rise(session: Session, sims: Sequence[SimRun], limit: float) 
         ``{"rise"}`` (the largest, as a factor), ``runs`` (file -> factor) and ``summary`` (words for
         the residual's).
     """
-    rise = {}
-    for r, s in zip(session.runs, sims, strict=True):
-        if r.spec.kind == STEP_RUN or s.diverged:
-            continue
-        fm = run_features(r.spec, r.data.t, r.data.y, r.data.u)
-        fs = run_features(r.spec, s.t, s.y, s.u)
-        if fm is None or fs is None:
-            continue
-        d = float(fm["r3mag"] - fs["r3mag"])
-        if math.isfinite(d):
-            rise[r.spec.file] = math.exp(d)
+    rise = {r["file"]: r["third_rise"] for r in residual["runs"] if r.get("third_rise") is not None}
     if not rise or max(rise.values()) <= limit:
         return None
     top = max(rise, key=rise.get)

@@ -31,7 +31,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
-from uavsim.gap.iterate import READ_FROM, absorbed_by, analyse, decide
+from uavsim.gap.iterate import BEYOND, READ_FROM, absorbed_by, analyse, decide
 
 CONDITIONS = ("true", "identified")
 
@@ -89,8 +89,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
                 "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
-                "play": flow.residual.get("play"), "wander": flow.residual.get("wander"),
-                "ring": flow.residual.get("ring"), "third_rise": flow.residual.get("third_rise"),
+                **{k: flow.residual.get(k) for k in BEYOND}, "third_rise": flow.residual.get("third_rise"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
@@ -110,7 +109,7 @@ def redecide(r: dict) -> dict:
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
     answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
-                    beyond=any(bool(r.get(k)) for k in ("play", "wander", "ring")))
+                    beyond=any(bool(r.get(k)) for k in BEYOND))
     t = truth_of(r)
     return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
 
