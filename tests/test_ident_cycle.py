@@ -38,7 +38,7 @@ def _uneven(y: np.ndarray, u: np.ndarray, stretch: float) -> tuple[np.ndarray, n
 
 @pytest.fixture(scope="module")
 def cycles():
-    g, b, cs, truth, sim, q_opt = _attitude_cycles(4)
+    g, b, cs, truth, sim, q_opt = _attitude_cycles(4, periods=16)
     return g, b, cs, sim
 
 
@@ -141,18 +141,18 @@ def test_a_longer_run_measures_its_point_better(long_run):
 
 
 def test_identification_averages_the_lateral_point_over_more_cycles(long_run, monkeypatch):
-    """``extract_cycle`` takes the loop's ``IDENT_RESPONSE_CYCLES`` (the lateral loop's: 12); a loop
-    not named keeps ``RESPONSE_CYCLES``. Run here on the attitude cycles with attitude named."""
+    """``extract_cycle`` takes the loop's ``IDENT_RESPONSE_CYCLES`` (the lateral and attitude loops': 12);
+    a loop not named keeps ``RESPONSE_CYCLES``. Run here on the attitude cycles, named and not."""
     import uavsim.ident.cycle as cy
     from uavsim.data.preprocess import RESPONSE_CYCLES
 
     g, b, sim = long_run
-    assert cy.IDENT_RESPONSE_CYCLES["lateral"] > RESPONSE_CYCLES
+    assert cy.IDENT_RESPONSE_CYCLES["lateral"] == cy.IDENT_RESPONSE_CYCLES["attitude"] == 12 > RESPONSE_CYCLES
     kw = {"rate_hz": 200.0, "h": 1.0, "bias": 0.0, "bundle": b, "beta": g.beta}
     y, u = -sim["e"][0], sim["u"][0]
-    assert cy.extract_cycle(y, u, **kw).response_cycles == RESPONSE_CYCLES
-    monkeypatch.setattr(cy, "IDENT_RESPONSE_CYCLES", {"attitude": 12})
     assert cy.extract_cycle(y, u, **kw).response_cycles == 12
+    monkeypatch.setattr(cy, "IDENT_RESPONSE_CYCLES", {"lateral": 12})
+    assert cy.extract_cycle(y, u, **kw).response_cycles == RESPONSE_CYCLES
 
 
 def test_response_cycles_must_be_positive(long_run):
@@ -162,3 +162,31 @@ def test_response_cycles_must_be_positive(long_run):
     g, b, sim = long_run
     with pytest.raises(UserError, match="response_cycles"):
         features(-sim["e"][0], sim["u"][0], 200.0, 1.0, 0.0, b.input_length, response_cycles=0)
+
+
+def test_a_point_that_scatters_beyond_the_loop_s_limit_is_refused(cycles, uneven_loop, monkeypatch):
+    """``scatter_refusal`` reads the phase's standard error off the cycles' spread (``point_sigmas``): a
+    spread of 0.6 rad over 4 cycles is 17 degrees, under attitude's 20; over 1 cycle, beyond it; a loop
+    without a limit never refuses. ``extract_cycle`` applies it: the uneven run's point (its phase
+    spread over the stretched cycles is finite) is refused at a limit below its own standard error."""
+    import math
+
+    import uavsim.ident.cycle as cy
+    from uavsim.ident.response import point_sigmas
+
+    assert cy.POINT_PHASE_SE_LIMIT_DEG == {"attitude": 20.0}
+    assert cy.scatter_refusal("attitude", (0.0, 0.6), 4) is None
+    why = cy.scatter_refusal("attitude", (0.0, 0.6), 1)
+    assert why is not None and "beyond 20" in why
+    assert cy.scatter_refusal("altitude", (0.0, 3.0), 1) is None
+    g, b, cs, sim = cycles
+    kw = {"rate_hz": 200.0, "h": 1.0, "bias": 0.0, "bundle": b, "beta": g.beta}
+    yu, uu = _uneven(-sim["e"][0], sim["u"][0], 1.4)
+    f = cy.extract_cycle(yu, uu, **kw)
+    se = math.degrees(point_sigmas((0.0, f.response_spread[1]), f.response_cycles)[1])
+    assert se > 0.0
+    monkeypatch.setattr(cy, "POINT_PHASE_SE_LIMIT_DEG", {"attitude": 0.5 * se})
+    with pytest.raises(NoOscillation, match="scatters from cycle to cycle"):
+        cy.extract_cycle(yu, uu, **kw)
+    monkeypatch.setattr(cy, "POINT_PHASE_SE_LIMIT_DEG", {"attitude": 2.0 * se})
+    assert cy.extract_cycle(yu, uu, **kw).response == f.response

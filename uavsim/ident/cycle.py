@@ -14,6 +14,9 @@ never a guess):
 * for a network trained on relay runs that trim their bias (``ModelBundle.bias_trim``),
   a cycle whose duty is further from a half than ``DUTY_LIMIT`` (``duty_refusal``): a
   relay bias (or disturbance) the training cycles never had.
+* for the loops in ``POINT_PHASE_SE_LIMIT_DEG`` (attitude), a measured point whose phase
+  scatters from cycle to cycle beyond that standard error (``scatter_refusal``): under heavy
+  noise such a point gives gains far from the optimum or unstable ones.
 
 When the run's last cycles are refused, the steady cycles before them are
 tried, up to ``MAX_CYCLES_DROPPED`` cycles back (``IDENT_CYCLES_DROPPED`` per loop: a
@@ -57,7 +60,7 @@ __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLE
            "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
            "extract_cycle", "response_cycles", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal",
-           "duty_refusal"]
+           "duty_refusal", "scatter_refusal", "POINT_PHASE_SE_LIMIT_DEG"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -79,7 +82,13 @@ MAX_CYCLES_DROPPED = 3
 IDENT_CYCLES_DROPPED: dict[str, int] = {"lateral": 10}
 #: most steady cycles each loop's fundamental response is averaged over, where the run has them
 #: (``uavsim.data.preprocess.features``' ``response_cycles``; a loop not named: ``RESPONSE_CYCLES``)
-IDENT_RESPONSE_CYCLES: dict[str, int] = {"lateral": 12}
+IDENT_RESPONSE_CYCLES: dict[str, int] = {"lateral": 12, "attitude": 12}
+#: identification refuses a loop's cycle whose measured point's phase standard error (its cycles' phase spread
+#: over the root of their count, ``uavsim.ident.response.point_sigmas``) is above this, degrees (a loop not
+#: named: never). Attitude runs of 13 cycles, development seeds 11-20 (3,000 processes, 0-20 % noise): the 7
+#: answers beyond 20 degrees (all at 15-20 % noise) had J 1.21-2.03 or were unstable; refusing them took the max
+#: 2.03 -> 1.38 at 27 refusals in all (docs/results/identification.md)
+POINT_PHASE_SE_LIMIT_DEG: dict[str, float] = {"attitude": 20.0}
 #: identification only: where no cut has two cycles within the preprocessing's steady tolerance, the cut whose
 #: two last cycles agree best is used if their lengths differ by at most this fraction of the longer
 #: (development seeds 11-12, lateral: every such answer stable, the spread back-off engaged on most)
@@ -121,6 +130,25 @@ def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
     return (f"relay duty {duty:.2f} over the cycle (a bias of about {err:.2f} h): the network was "
             "trained on relay runs that trim their bias to a symmetric cycle; fly the run with bias_trim = \"duty\" "
             "and long enough for the trim to settle")
+
+
+def scatter_refusal(loop: str, response_spread: tuple[float, float], cycles: int) -> str | None:
+    """Why a cycle's measured point scatters too much to identify ``loop`` from, or None.
+
+    ``response_spread``: std of log |G| and of the phase (rad) over the ``cycles`` steady cycles the
+    point averages (``CycleFeatures.response_spread``); refused where the phase's standard error is
+    above the loop's ``POINT_PHASE_SE_LIMIT_DEG``.
+    """
+    from uavsim.ident.response import point_sigmas
+
+    limit = POINT_PHASE_SE_LIMIT_DEG.get(loop)
+    if limit is None:
+        return None
+    se = math.degrees(point_sigmas((0.0, float(response_spread[1])), int(cycles))[1])
+    if not se > limit:
+        return None
+    return (f"the measured point's phase scatters from cycle to cycle (standard error {se:.0f} deg over {cycles} "
+            f"cycles, beyond {limit:g}): noise or a disturbance moves the cycle; fly a longer run or with less noise")
 
 
 def period_refusal(period: float, bounds: tuple[float, float]) -> str | None:
@@ -185,7 +213,6 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
     u = np.asarray(u, dtype=np.float64)
     pos = (u - bias) > 0
     edges = np.flatnonzero(pos[1:] & ~pos[:-1]) + 1
-    first = None
     # the last cycles, else the last steady ones before them (noise can break a run's last cycle): cut
     # at each rising edge back to MAX_CYCLES_DROPPED typical cycles before the end (a chattering burst
     # has many edges)
@@ -207,12 +234,24 @@ def extract_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bia
             raise NoOscillation(why)
         return f
 
+    f = _first_cut(cuts, checked, edges=edges, uneven=bundle.loop in UNEVEN_CYCLE_LOOPS)
+    why = scatter_refusal(bundle.loop, f.response_spread, f.response_cycles)
+    if why:
+        raise NoOscillation(why)
+    return f
+
+
+def _first_cut(cuts: list[int], checked, *, edges: np.ndarray, uneven: bool) -> CycleFeatures:
+    """The first cut of ``cuts`` (sample indices) that ``checked(stop, None)`` accepts; else, where
+    ``uneven``, the most even pair's (module docstring; ``edges``: the relay's rising edges); else
+    the first refusal."""
+    first = None
     for stop in cuts:
         try:
             return checked(stop, None)
         except NoOscillation as exc:
             first = first or exc
-    if bundle.loop not in UNEVEN_CYCLE_LOOPS:
+    if not uneven:
         raise first
     # no cut with a steady pair: the most even pair of cycles, up to IDENT_STEADY_TOL apart (module docstring)
     # (the tolerance passed is the pair's own, so the response cycles are the ones as even as it; the

@@ -64,6 +64,10 @@ in the lateral box) over that class's attitude loop as the bundle of
 relay runs fly ``RUN_CYCLES`` (13) cycles, and their steady cycles answer the family's
 PD (``family``; ``family=False``: the table's).
 
+Attitude relay runs fly ``RUN_CYCLES`` (13) cycles as well, and identification averages their
+point over up to 12 (``uavsim.ident.cycle.IDENT_RESPONSE_CYCLES``); altitude runs fly the
+recipe's 5.
+
     from uavsim.ident.evaluate import EvalSpec, evaluate
     res = evaluate(EvalSpec(loop="altitude", n=300, seed=2), models="training/runs", recipe="datasets/altitude.toml")
     res["rows"]                    # per noise level and all: one summary per answer / control
@@ -111,8 +115,10 @@ _FAIL = np.inf
 SECOND_SEED_OFFSET = 10_000_000
 #: relay cycles a loop's identification run flies where not told (``EvalSpec.cycles``; a loop not named: the
 #: recipe's ``[episodes] cycles``, the training sets' 5): a lateral run of 13 measures its point over up to 12
-#: steady cycles (development seeds 11-12: refusals 9 and 17 of 480 -> 3 and 14, p95 1.694 / 1.881 -> 1.355 / 1.559)
-RUN_CYCLES: dict[str, int] = {"lateral": 13}
+#: steady cycles (development seeds 11-12: refusals 9 and 17 of 480 -> 3 and 14, p95 1.694 / 1.881 -> 1.355 / 1.559);
+#: an attitude run of 13 too (development seeds 11-20, its point over 12 cycles: p95 1.118 -> 1.102 before the
+#: belief guard's margin was re-set)
+RUN_CYCLES: dict[str, int] = {"lateral": 13, "attitude": 13}
 
 
 @dataclass(frozen=True)

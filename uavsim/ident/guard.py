@@ -71,7 +71,10 @@ GUARD_BELIEFS = 4
 GUARD_BELIEF_MIN = 0.05
 #: extra phase lag those models are taken with, degrees, per loop (a loop not named: no belief check;
 #: the lateral ``stable`` decision closes its PDs on the belief's models itself)
-GUARD_BELIEF_PHASE_DEG: dict[str, float] = {"altitude": 5.0, "attitude": 7.5}
+#: attitude 6.25: with the point averaged over up to 12 cycles (``uavsim.ident.cycle.IDENT_RESPONSE_CYCLES``)
+#: the 7.5 chosen over 4 backed off well-measured answers too far (development seeds 11-20, runs of 13 cycles:
+#: p95 1.102 -> 1.094, max 2.15 -> 2.03; 5.0: p95 1.096, max 2.56; docs/results/identification.md)
+GUARD_BELIEF_PHASE_DEG: dict[str, float] = {"altitude": 5.0, "attitude": 6.25}
 
 
 def default_guard(loop: str, guard: bool | None) -> bool:
