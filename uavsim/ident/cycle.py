@@ -85,9 +85,9 @@ IDENT_CYCLES_DROPPED: dict[str, int] = {"lateral": 10}
 IDENT_RESPONSE_CYCLES: dict[str, int] = {"lateral": 12, "attitude": 12}
 #: identification refuses a loop's cycle whose measured point's phase standard error (its cycles' phase spread
 #: over the root of their count, ``uavsim.ident.response.point_sigmas``) is above this, degrees (a loop not
-#: named: never). Attitude runs of 13 cycles, development seeds 11-20 (3,000 processes, 0-20 % noise): the 7
-#: answers beyond 20 degrees (all at 15-20 % noise) had J 1.21-2.03 or were unstable; refusing them took the max
-#: 2.03 -> 1.38 at 27 refusals in all (docs/results/identification.md)
+#: named: never). Attitude runs of 13 cycles, development seeds 11-20 (3,000 processes, 0-20 % noise): of the 7
+#: answers beyond 20 degrees (all at 15-20 % noise) one was unstable and five had J 1.26-2.03; refusing them took
+#: the max 2.03 -> 1.38 at 27 refusals in all (docs/results/identification.md)
 POINT_PHASE_SE_LIMIT_DEG: dict[str, float] = {"attitude": 20.0}
 #: identification only: where no cut has two cycles within the preprocessing's steady tolerance, the cut whose
 #: two last cycles agree best is used if their lengths differ by at most this fraction of the longer
