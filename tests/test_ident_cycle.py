@@ -140,7 +140,7 @@ def test_a_longer_run_measures_its_point_better(long_run):
         assert 1.3 < ratio < 2.5, ratio
 
 
-def test_identification_averages_the_lateral_point_over_more_cycles(long_run, monkeypatch):
+def test_identification_averages_the_point_over_the_loop_s_cycles(long_run, monkeypatch):
     """``extract_cycle`` takes the loop's ``IDENT_RESPONSE_CYCLES`` (the lateral and attitude loops': 12);
     a loop not named keeps ``RESPONSE_CYCLES``. Run here on the attitude cycles, named and not."""
     import uavsim.ident.cycle as cy

@@ -39,7 +39,7 @@ import numpy as np
 
 from uavsim.data.preprocess import CycleFeatures, process_response
 from uavsim.ident.bundle import ModelBundle
-from uavsim.ident.response import class_response, measured_phase, point_sigmas
+from uavsim.ident.response import class_response, measured_phase, phase_se_deg
 
 __all__ = ["POINT_PHASE_TOL_DEG", "EXCLUDED_LOGIT", "delay_phase_deg", "phase_tolerance_deg",
            "consistent_classes", "consistent_activations"]
@@ -72,7 +72,7 @@ def phase_tolerance_deg(loop: str, phase_spread_rad: float, cycles: int) -> floa
     floor = POINT_PHASE_TOL_DEG.get(loop)
     if floor is None:
         return None
-    return max(float(floor), math.degrees(point_sigmas((0.0, phase_spread_rad), cycles)[1]))
+    return max(float(floor), phase_se_deg(phase_spread_rad, cycles))
 
 
 def consistent_classes(bundle: ModelBundle, f: CycleFeatures) -> np.ndarray | None:

@@ -55,6 +55,7 @@ from uavsim.data.preprocess import (
 )
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.response import phase_se_deg
 
 __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_CYCLES_DROPPED",
            "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
@@ -139,12 +140,10 @@ def scatter_refusal(loop: str, response_spread: tuple[float, float], cycles: int
     point averages (``CycleFeatures.response_spread``); refused where the phase's standard error is
     above the loop's ``POINT_PHASE_SE_LIMIT_DEG``.
     """
-    from uavsim.ident.response import point_sigmas
-
     limit = POINT_PHASE_SE_LIMIT_DEG.get(loop)
     if limit is None:
         return None
-    se = math.degrees(point_sigmas((0.0, float(response_spread[1])), int(cycles))[1])
+    se = phase_se_deg(float(response_spread[1]), cycles)
     if not se > limit:
         return None
     return (f"the measured point's phase scatters from cycle to cycle (standard error {se:.0f} deg over {cycles} "

@@ -148,3 +148,8 @@ def point_sigmas(spread, cycles: int, floor: tuple[float, float] = (0.0, 0.0)) -
     n = max(int(cycles), 1)
     sg, sp = (float(s) if np.isfinite(s) else 0.0 for s in spread)
     return max(sg / math.sqrt(n), floor[0]), max(sp / math.sqrt(n), math.radians(floor[1]))
+
+
+def phase_se_deg(phase_spread_rad: float, cycles: int) -> float:
+    """A measured point's phase standard error, deg: ``point_sigmas``' of a phase spread (rad) over ``cycles``."""
+    return math.degrees(point_sigmas((0.0, phase_spread_rad), cycles)[1])
