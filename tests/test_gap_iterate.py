@@ -173,6 +173,38 @@ def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
         iterate.identify_base(s)
 
 
+def test_a_relay_refused_for_its_duty_alone_is_identified_without_the_check(monkeypatch):
+    """No relay run accepted, one refused for its duty (a biased cycle the trimmed training relays never
+    had): the base model is that run's, identified without the duty check, and the answer says so; a
+    run refused for anything else is not retried."""
+    import uavsim.ident.session as ident
+
+    duty = "relay duty 0.65 over the cycle (a bias of about 0.30 h): the network was trained on ..."
+    seen = []
+
+    def fake(path, models=None, run=None, duty_check=True):
+        seen.append((run, duty_check))
+        if run == "r0.csv":
+            raise UserError("no steady state")
+        if duty_check:
+            raise UserError(duty)
+        return {"run": run, "class": 1, "params": {"K": 1.0, "T_prop": 0.05, "T1": 0.4, "tau": 0.02},
+                "noise_std": 0.1}
+
+    monkeypatch.setattr(ident, "identify_session", fake)
+    s = _session(runs=((0.5, 1.0, 10), (0.4, 1.0, 12)))
+    s.model = None
+    model, ans = iterate.identify_base(s)
+    assert ans["run"] == "r1.csv" and ans["duty_check"] is False and model.tau == 0.02
+    assert ans["refused_runs"] == ["r0.csv: no steady state", f"r1.csv: {duty}"]
+    assert seen == [("r0.csv", True), ("r1.csv", True), ("r1.csv", False)]
+    msgs = []
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ans))
+    _script(monkeypatch, [("none", 1.0, 1.0)])
+    iterate.analyse(s, log=msgs.append)
+    assert any(m.startswith("r1.csv identified without the duty check") for m in msgs)
+
+
 def test_dead_run_is_dropped_and_named(monkeypatch):
     calls = _script(monkeypatch, [("none", 1.0, 1.0)])
     s = _session(runs=((0.5, 1.0, 10), (0.5, 1.0, 2)))  # the second holds too few cycles

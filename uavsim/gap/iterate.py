@@ -338,6 +338,12 @@ def live_runs(session: Session) -> tuple[Session, list[str]]:
 def identify_base(session: Session, models: str | Path | None = None) -> tuple[ModelSpec, dict]:
     """The base model ``uavsim identify --write-model`` would write, from the session's first live relay run.
 
+    Where no relay run is accepted and some were refused for their duty (a bias the trimmed training
+    relays never had: ``uavsim.ident.cycle.duty_refusal``), the first of those is identified without
+    that check: the bias
+    is one of the effects the gap workflow looks for, and the refit and the search start from
+    there. The answer's ``duty_check`` says so (False).
+
     Returns
     -------
     (ModelSpec, dict)
@@ -357,24 +363,42 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
         path = session.path
         if path is None:
             path = write_session(session, Path(tmp) / "s")
-        refusals = []
-        for r in (
-            relays
-        ):  # the first relay run that identification accepts (one may have lost its cycle)
+        refusals, duty_only = [], []
+        ans = None
+        for r in relays:  # the first relay run that identification accepts (one may have lost its cycle)
             try:
                 ans = identify_session(path, models=models, run=r.spec.file)
                 break
             except UserError as exc:
                 refusals.append(f"{r.spec.file}: {exc}")
-        else:
+                if str(exc).startswith("relay duty "):
+                    duty_only.append(r)
+        if ans is None and duty_only:
+            ans = _identify_without_duty(path, models, duty_only)
+        if ans is None:
             raise UserError(
                 f"session {path}: no relay run identifies a base model ({'; '.join(refusals)})"
             )
     ans["refused_runs"] = refusals
+    ans["duty_check"] = ans.get("duty_check", True)
     p = ans["params"]
     model = ModelSpec(K=float(p["K"]), T_prop=float(p["T_prop"]), T1=float(p["T1"]), tau=float(p["tau"]),
                       T2=p.get("T2"), noise_std=float(ans.get("noise_std", 0.0)))  # fmt: skip
     return model, ans
+
+
+def _identify_without_duty(path: Path, models: str | Path | None, relays: list) -> dict | None:
+    """The first of ``relays`` (each refused for its duty) identified without the duty check, or None."""
+    from uavsim.ident.session import identify_session
+
+    for r in relays:
+        try:
+            ans = identify_session(path, models=models, run=r.spec.file, duty_check=False)
+        except UserError:
+            continue
+        ans["duty_check"] = False
+        return ans
+    return None
 
 
 def cycle_response(ident: dict) -> tuple[complex, float]:
@@ -573,6 +597,9 @@ def analyse(
         source = "identified"
         for why in ident["refused_runs"]:
             log(f"identification refused {why}")
+        if not ident.get("duty_check", True):
+            log(f"{ident['run']} identified without the duty check (its relay cycle is biased, which the network's "
+                "training relays never were): the base model's class is less sure, the search looks for the bias")
         log(f"no [model]: base model identified from {ident['run']} (class {ident['class']}): "
             f"K {model.K:.4g}, T_prop {model.T_prop:.4g} s, T1 {model.T1:.4g} s, tau {model.tau * 1e3:.1f} ms, "
             f"noise std {model.noise_std:.3g}")  # fmt: skip

@@ -229,7 +229,8 @@ def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
                      optimum: str = "never", decision: str | None = None, guard: bool | None = None,
-                     second_run: str | None = None, family: bool | None = None) -> dict[str, Any]:
+                     second_run: str | None = None, family: bool | None = None,
+                     duty_check: bool = True) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -251,6 +252,10 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     second_run : str or None
         File name of a second relay run of the session at another ``beta`` (``-0.3``:
         ``uavsim.ident.twopoint.SECOND_BETA``) whose measured point weighs the belief; None: one run.
+    duty_check : bool
+        Refuse a cycle whose duty a network trained on bias-trimmed relays never saw
+        (``uavsim.ident.cycle.duty_refusal``). The gap workflow turns it off for a base model
+        when every relay run is refused so: the bias is one of the effects it looks for.
 
     Returns
     -------
@@ -277,6 +282,8 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     r = relays[0]
     d = resolve_model_dir(fam, models, attitude_class)
     b = load_bundle(d)
+    if not duty_check:
+        b = replace(b, bias_trim="off")
     if b.loop != fam:
         raise UserError(f"{d} holds a {b.loop} network, the session is {s.loop}")
     if fam == "lateral" and b.att_class not in (None, attitude_class):
