@@ -340,9 +340,8 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
 
     Where no relay run is accepted and some were refused for their duty (a bias the trimmed training
     relays never had: ``uavsim.ident.cycle.duty_refusal``), the first of those is identified without
-    that check: the bias
-    is one of the effects the gap workflow looks for, and the refit and the search start from
-    there. The answer's ``duty_check`` says so (False).
+    that check: the bias is one of the effects the gap workflow looks for, and the refit and the
+    search start from there. The answer's ``duty_check`` says so (False).
 
     Returns
     -------
