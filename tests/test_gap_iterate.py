@@ -178,8 +178,10 @@ def test_a_relay_refused_for_its_duty_alone_is_identified_without_the_check(monk
     had): the base model is that run's, identified without the duty check, and the answer says so; a
     run refused for anything else is not retried."""
     import uavsim.ident.session as ident
+    from uavsim.ident.cycle import duty_refusal
 
-    duty = "relay duty 0.65 over the cycle (a bias of about 0.30 h): the network was trained on ..."
+    duty = duty_refusal(np.r_[np.ones(65), -np.ones(35)], "duty")  # the message identification raises
+    assert duty is not None
     seen = []
 
     def fake(path, models=None, run=None, duty_check=True):
