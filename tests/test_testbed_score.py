@@ -87,3 +87,15 @@ def test_summary_scores_the_constant_answers_on_the_same_truths():
              "answer": "none", "found": [], "gap_before": 3.0, "gap_after": 3.0, "ok": False, "seconds": 50.0}]  # fmt: skip
     assert score.controls(recs) == {"none": 2, "unexplained": 1}  # a linear single counts as absorbed under none
     assert "controls on the same truths: always none 2/3, always unexplained 1/3" in score.summary(recs)
+
+
+def test_record_says_which_run_identified_the_base_and_whether_the_duty_check_was_on(tmp_path, monkeypatch):
+    folder = _truth(tmp_path)
+    flow = _Flow()
+    flow.identification = {"run": "r1.csv", "refused_runs": ["r0.csv: relay duty 0.64 over the cycle"],
+                           "duty_check": False, "class": 3, "params": {"K": 1.0}, "n_cycles_internal": 9}  # fmt: skip
+    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
+    ident = score.one(folder, None, "identified", 0)["identification"]
+    assert ident["run"] == "r1.csv" and ident["duty_check"] is False
+    assert ident["refused_runs"] == ["r0.csv: relay duty 0.64 over the cycle"] and "n_cycles_internal" not in ident

@@ -94,8 +94,8 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
                 "identified": {k: j["base_model"][k] for k in ("K", "T_prop", "T1", "tau", "noise_std")},
-                "identification": ({k: flow.identification.get(k) for k in ("class", "class_params", "params", "oscillation",
-                                                                   "refit")}
+                "identification": ({k: flow.identification.get(k) for k in ("run", "refused_runs", "duty_check", "class",
+                                                                   "class_params", "params", "oscillation", "refit")}
                                    if flow.identification else None),
                 "seconds": time.perf_counter() - t0})  # fmt: skip
     rec.update(score(t, flow.answer, j["found"], flow.gap_before, flow.gap_after))
