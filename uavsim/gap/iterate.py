@@ -348,6 +348,7 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
     (ModelSpec, dict)
         The model (with the relay's noise std) and identify's JSON answer.
     """
+    from uavsim.ident.cycle import DUTY_REFUSAL_PREFIX
     from uavsim.ident.session import identify_session
 
     relays = sorted(
@@ -370,7 +371,7 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
                 break
             except UserError as exc:
                 refusals.append(f"{r.spec.file}: {exc}")
-                if str(exc).startswith("relay duty "):
+                if str(exc).startswith(DUTY_REFUSAL_PREFIX):
                     duty_only.append(r)
         if ans is None and duty_only:
             ans = _identify_without_duty(path, models, duty_only)

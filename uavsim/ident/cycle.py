@@ -61,7 +61,7 @@ __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLE
            "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
            "extract_cycle", "response_cycles", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal",
-           "duty_refusal", "scatter_refusal", "POINT_PHASE_SE_LIMIT_DEG"]
+           "duty_refusal", "DUTY_REFUSAL_PREFIX", "scatter_refusal", "POINT_PHASE_SE_LIMIT_DEG"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
 SATURATION_FRACTION = 0.35
@@ -115,6 +115,10 @@ def saturation_refusal(y: np.ndarray) -> str | None:
     return None
 
 
+#: how :func:`duty_refusal`'s reason begins (the gap workflow tells a refusal for the duty alone by it)
+DUTY_REFUSAL_PREFIX = "relay duty "
+
+
 def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
     """Why a cycle is not one a network trained on relays with ``bias_trim`` knows, or None.
 
@@ -128,7 +132,7 @@ def duty_refusal(s: np.ndarray, bias_trim: str) -> str | None:
     err = abs(2.0 * duty - 1.0)
     if err <= DUTY_LIMIT:
         return None
-    return (f"relay duty {duty:.2f} over the cycle (a bias of about {err:.2f} h): the network was "
+    return (f"{DUTY_REFUSAL_PREFIX}{duty:.2f} over the cycle (a bias of about {err:.2f} h): the network was "
             "trained on relay runs that trim their bias to a symmetric cycle; fly the run with bias_trim = \"duty\" "
             "and long enough for the trim to settle")
 
