@@ -10,7 +10,7 @@ def test_bench_infer_times_every_stage(tmp_path, monkeypatch):
     out = run_bench(None, reps=3, threads=1)
     assert not out["trained_model"]
     for k in ("preprocess", "network", "identification", "identification_table_path", "identification_guarded",
-              "fitted_optimum"):
+              "identification_two_points", "fitted_optimum"):
         assert math.isfinite(out[k]["median_ms"]) and out[k]["median_ms"] > 0, k
     # the guarded identification is the table path plus the guard's own ISEs
     assert out["identification_guarded"]["median_ms"] > out["preprocess"]["median_ms"]

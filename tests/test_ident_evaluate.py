@@ -120,21 +120,38 @@ def test_cli_runs_blas_on_one_thread_unless_told(monkeypatch, given, expected):
 
 
 def test_cli_second_run(three_model, tmp_path):  # noqa: F811 (fixture)
-    """``--second-beta``: every process also flies a relay run at that beta (the same noise in output
-    units), and the answer weighs its belief by both measured points; a beta outside (-1, 1) is a
-    one-line error."""
+    """An inner loop's processes also fly a relay run at ``SECOND_BETA`` by default (the same noise in
+    output units), and the answer weighs its belief by both measured points; ``--second-beta none``
+    flies one run; a beta outside (-1, 1) or a word is a one-line error."""
     _, model, _ = three_model
     cmd = [sys.executable, "-m", "uavsim.cli.main", "evaluate", "--loop", "altitude", "--models", str(model),
            "--recipe", str(ROOT / "datasets" / "small.toml"), "--n", "3", "--seed", "4", "--json"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    res = subprocess.run(cmd + ["--second-beta", "-0.3"], capture_output=True, text=True, cwd=ROOT, env=env)
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
     assert out["spec"]["second_beta"] == -0.3 and out["second_run"]["beta"] == -0.3
     answered = out["rows"]["all"]["answer"]["n"] - out["rows"]["all"]["answer"]["refused"]
     assert 1 <= out["second_run"]["two_points"] <= answered
-    bad = subprocess.run(cmd + ["--second-beta", "1.5"], capture_output=True, text=True, cwd=ROOT, env=env)
-    assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    one = subprocess.run(cmd + ["--second-beta", "none"], capture_output=True, text=True, cwd=ROOT, env=env)
+    assert one.returncode == 0, one.stderr
+    out1 = json.loads(one.stdout)
+    assert out1["spec"]["second_beta"] is None and "second_run" not in out1
+    for word in ("1.5", "twice"):
+        bad = subprocess.run(cmd + ["--second-beta", word], capture_output=True, text=True, cwd=ROOT, env=env)
+        assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_second_beta_for_each_loop():
+    from uavsim.errors import UserError
+    from uavsim.ident.evaluate import second_beta_for
+    from uavsim.ident.twopoint import SECOND_BETA
+
+    assert second_beta_for("altitude", "auto") == second_beta_for("attitude", "auto") == SECOND_BETA
+    assert second_beta_for("lateral", "auto") is None and second_beta_for("altitude", None) is None
+    assert second_beta_for("lateral", -0.5) == -0.5
+    with pytest.raises(UserError, match="second_beta"):
+        second_beta_for("altitude", 1.0)
 
 
 def test_cycles_set_the_relay_runs_length(three_model, monkeypatch, tmp_path):  # noqa: F811 (fixture)
@@ -151,7 +168,7 @@ def test_cycles_set_the_relay_runs_length(three_model, monkeypatch, tmp_path):  
         return real(params, recipe, *a, **kw)
 
     monkeypatch.setattr(ev, "_simulate", spy)
-    res = ev.evaluate(ev.EvalSpec(loop="altitude", n=2, seed=5, cycles=9), models=model,
+    res = ev.evaluate(ev.EvalSpec(loop="altitude", n=2, seed=5, cycles=9, second_beta=None), models=model,
                       recipe=ROOT / "datasets" / "small.toml", log=lambda m: None)
     assert seen == [(9.0, None)] and res["spec"]["cycles"] == 9
     cmd = [sys.executable, "-m", "uavsim.cli.main", "evaluate", "--loop", "altitude", "--models", str(model),

@@ -61,3 +61,20 @@ def test_a_flat_belief_weighed_by_both_points_ranks_the_true_class_near_the_top(
         p = softmax(act, b.temperature)[0]
         assert np.isclose(p.sum(), 1.0)
         assert int(np.sum(p > p[c])) <= g.n // 8  # near-equal fits of neighbouring classes above it
+
+
+def test_the_second_run_found_in_a_session_is_the_first_other_relay_run_at_second_beta():
+    from types import SimpleNamespace as NS
+
+    from uavsim.ident.twopoint import SECOND_BETA, auto_second_run
+
+    def run(file, kind="np-mrft", beta=-0.73):
+        return NS(spec=NS(file=file, kind=kind, beta=beta))
+
+    runs = [run("a.csv"), run("step.csv", kind="step", beta=None), run("b.csv", beta=SECOND_BETA),
+            run("c.csv", beta=SECOND_BETA)]
+    assert auto_second_run(runs, "a.csv", "altitude") == "b.csv"
+    assert auto_second_run(runs, "b.csv", "attitude") == "c.csv"  # never the first run itself
+    assert auto_second_run(runs, "a.csv", "lateral") is None  # not measured there: one run
+    assert auto_second_run(runs[:2], "a.csv", "altitude") is None
+    assert auto_second_run([run("s.csv", kind="step", beta=SECOND_BETA), *runs[:1]], "a.csv", "altitude") is None

@@ -182,13 +182,24 @@ def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
                            with_model=False, file="relay_b030.csv").runs[0]
     s = read_session(setup["session"])
     path = write_session(replace(s, runs=[*s.runs, second]), tmp_path / "two")
-    one = identify_session(path, models=setup["model"])
+    one = identify_session(path, models=setup["model"], second_run=None)
     two = identify_session(path, models=setup["model"], second_run="relay_b030.csv")
+    auto = identify_session(path, models=setup["model"])  # the default finds the run at SECOND_BETA
     assert "second_run" not in one and one["run"] == "relay.csv"
     assert two["class"] == one["class"] == TRUE
     sr = two["second_run"]
     assert sr["run"] == "relay_b030.csv" and sr["beta"] == SECOND_BETA and sr["n_cycles"] >= 1
     assert sr["omega"] < two["response"]["omega"]
+    assert auto["second_run"] == sr and auto["gains"] == two["gains"]
+    # a run found (not named) that holds no cycle leaves one point and says why; named, it is an error
+    d = second.data
+    short = replace(second, data=replace(d, t=d.t[:100], r=d.r[:100], y=d.y[:100], u=d.u[:100]))
+    path_short = write_session(replace(s, runs=[*s.runs, short]), tmp_path / "short")
+    skipped = identify_session(path_short, models=setup["model"])
+    assert skipped["second_run"]["run"] == "relay_b030.csv" and skipped["second_run"]["skipped"]
+    assert skipped["gains"] == one["gains"]
+    with pytest.raises(UserError, match="second run relay_b030.csv"):
+        identify_session(path_short, models=setup["model"], second_run="relay_b030.csv")
     with pytest.raises(UserError, match="no np-mrft/mrft run with file 'nope.csv'"):
         identify_session(path, models=setup["model"], second_run="nope.csv")
     with pytest.raises(UserError, match="another beta"):

@@ -13,7 +13,9 @@ is the same with the loop's defaults (the inner loops' ``blend`` closes the beli
 models and the phase-margin guard its answer's, a few ms more, for a lower J:
 docs/results/identification.md); its stages are reported beside them, with
 ``identification_guarded`` (the whole identification with the guard, ``identify --guard``)
-and the opt-in optimum of the fitted model (``--optimum``, ``fitted_optimum``). Each is timed ``--reps`` times on a 10 s,
+``identification_two_points`` (the loop's defaults with a second run at ``SECOND_BETA``, its cycle's
+extraction included: what ``uavsim identify`` does on a session that holds one) and the opt-in optimum
+of the fitted model (``--optimum``, ``fitted_optimum``). Each is timed ``--reps`` times on a 10 s,
 200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
 with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
 The network's first layer multiplies only the input's samples of the cycle (inputs are
@@ -55,11 +57,12 @@ import numpy as np
 GOAL_MS = 2.0
 
 
-def _trace(grid, c: int, seconds: float = 10.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def _trace(grid, c: int, seconds: float = 10.0, seed: int = 0, beta: float | None = None
+           ) -> tuple[np.ndarray, np.ndarray]:
     from uavsim.lumped.simulate import simulate_relay_batch
 
     p = grid.params_of(c)
-    sim = simulate_relay_batch("altitude", grid.beta, 1.0, 0.005, int(seconds * 200), K=1.0, T_prop=p.T_prop,
+    sim = simulate_relay_batch("altitude", grid.beta if beta is None else beta, 1.0, 0.005, int(seconds * 200), K=1.0, T_prop=p.T_prop,
                                T1=p.T1, tau=p.tau)
     rng = np.random.default_rng(seed)
     y = -sim["e"][0] + 0.05 * grid.amplitude[c] * rng.standard_normal(sim["e"].shape[1])
@@ -111,7 +114,8 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     from uavsim.ident.cycle import extract_cycle
     from uavsim.ident.gains import fitted_model, model_optimum, table_gains
     from uavsim.ident.select import DEFAULT_DECISION, choose_class, cycle_activations
-    from uavsim.ident.session import identify_arrays
+    from uavsim.ident.session import identify_arrays, second_cycle
+    from uavsim.ident.twopoint import SECOND_BETA
     from uavsim.tuning.grid import load_grid
 
     g = load_grid("altitude")
@@ -120,6 +124,8 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     # the longest cycle fills the whole input: the network's first layer at its largest (the goal is on
     # the mid-grid trace; this row shows the worst case beside it)
     y_slow, u_slow = _trace(g, int(np.argmax(g.period)), seconds=20.0)
+    # the same process's second run at SECOND_BETA (slower: twice as long), the same sensor noise
+    y2, u2 = _trace(g, c, seconds=20.0, seed=1, beta=SECOND_BETA)
     with tempfile.TemporaryDirectory() as tmp:
         d, trained = _model_dir(models, Path(tmp))
         b = load_bundle(d)
@@ -133,7 +139,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         x0 = extract_cycle(y, u, **kw).x
         for _ in range(20):  # warm-up (caches)
             identify_arrays(y, u, beta=g.beta, **kw)
-        t_pre, t_net, t_all, t_base, t_opt, t_grd, t_tab, t_slow = (np.empty(reps) for _ in range(8))
+        t_pre, t_net, t_all, t_base, t_opt, t_grd, t_tab, t_slow, t_two = (np.empty(reps) for _ in range(9))
         f = extract_cycle(y, u, **kw)
         c = choose_class(b, pred.activations(f.x), decision=b.decision)  # the optimum's start: the grid's class
         model = fitted_model(b, c, np.array([f.response]), np.array([f.response_period]))
@@ -162,8 +168,11 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             t6 = time.perf_counter()
             identify_arrays(y_slow, u_slow, beta=g.beta, decision=table_decision, guard=False, **kw)
             t7 = time.perf_counter()
+            f2 = second_cycle(y2, u2, rate_hz=200.0, h=1.0, bias=0.0, cycles=b.cycles)
+            identify_arrays(y, u, beta=g.beta, second=f2, **kw)
+            t8 = time.perf_counter()
             t_pre[i], t_net[i], t_all[i], t_base[i], t_grd[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4
-            t_tab[i], t_slow[i] = t6 - t5, t7 - t6
+            t_tab[i], t_slow[i], t_two[i] = t6 - t5, t7 - t6, t8 - t7
         for i in range(max(1, reps // 10)):  # the optional optimum: 10-20 ms each
             t0 = time.perf_counter()
             model_optimum(b, model, start=start)
@@ -177,7 +186,8 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         "identification": _stats(t_all), "identification_table_path": _stats(t_tab),
         "identification_table_path_slowest_class": _stats(t_slow),
         "default_decision": DEFAULT_DECISION.get("altitude", b.decision),
-        "identification_guarded": _stats(t_grd), "fitted_optimum": _stats(t_opt),
+        "identification_guarded": _stats(t_grd), "identification_two_points": _stats(t_two),
+        "fitted_optimum": _stats(t_opt),
         "baseline_numpy_forward": _stats(t_base) if W is not None else None, "goal_ms": GOAL_MS,
         "blas_threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
     }
@@ -253,7 +263,7 @@ def _run(args: argparse.Namespace) -> int:
     rows = []
     for k in ("preprocess", "network", "preprocess_plus_network", "identification_table_path",
               "identification_table_path_slowest_class", "identification",
-              "identification_guarded", "fitted_optimum", "baseline_numpy_forward"):
+              "identification_guarded", "identification_two_points", "fitted_optimum", "baseline_numpy_forward"):
         if out.get(k):
             rows.append({"stage": k, **out[k]})
     print_table(rows)

@@ -57,14 +57,15 @@ def register(subparsers) -> None:
                         "uavsim.ident.cycle.IDENT_INPUTS)")
     p.add_argument("--combine", choices=["logsum", "logmean", "mean"], default=None,
                    help="with --inputs each: how the cycles' beliefs combine (default mean: their mean probabilities)")
-    p.add_argument("--second-beta", type=float, default=None, metavar="BETA",
-                   help="also fly a second relay run at this beta (e.g. -0.3) on every process and weigh the "
-                        "network's belief by how each class fits both measured points (uavsim.ident.twopoint)")
+    p.add_argument("--second-beta", default="auto", metavar="BETA",
+                   help="also fly a second relay run at this beta on every process and weigh the network's belief "
+                        "by how each class fits both measured points (uavsim.ident.twopoint); default auto: -0.3 on "
+                        "altitude and attitude, one run on lateral loops; none: one run (the paper's method)")
     p.add_argument("--bias-trim", choices=["off", "duty"], default=None,
                    help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
                         "network's dataset recipe's [test] bias_trim")
     p.add_argument("--cycles", type=int, default=None,
-                   help="relay cycles each run flies, the first a transient (default: 13 on lateral loops, which "
+                   help="relay cycles each run flies, the first a transient (default: 13 on attitude and lateral loops, which "
                         "average their point over up to 12; else the recipe's [episodes] cycles, the training sets' 5)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
@@ -87,8 +88,16 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--n and --chunk must be >= 1")
     if not 0 < args.K[0] <= args.K[1]:
         raise UserError(f"--K needs 0 < LO <= HI, got {args.K[0]} {args.K[1]}")
-    if args.second_beta is not None and not -1 < args.second_beta < 1:
-        raise UserError(f"--second-beta must lie in (-1, 1), got {args.second_beta}")
+    second_beta = args.second_beta
+    if second_beta not in ("auto", "none"):
+        try:
+            second_beta = float(second_beta)
+        except ValueError:
+            raise UserError(f"--second-beta takes a beta, auto or none, got {second_beta!r}") from None
+        if not -1 < second_beta < 1:
+            raise UserError(f"--second-beta must lie in (-1, 1), got {second_beta}")
+    elif second_beta == "none":
+        second_beta = None
     recipe = Path(args.recipe) if args.recipe else Path("datasets") / f"{args.loop}.toml"
     if not recipe.is_file():
         raise UserError(f"recipe {recipe} not found (pass --recipe)")
@@ -100,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--att-classes: not a comma-separated list of integers: {args.att_classes!r}") from None
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
-                    combine=args.combine, second_beta=args.second_beta, bias_trim=args.bias_trim,
+                    combine=args.combine, second_beta=second_beta, bias_trim=args.bias_trim,
                     family=args.family, cycles=args.cycles)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)

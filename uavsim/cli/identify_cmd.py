@@ -57,9 +57,11 @@ def register(subparsers) -> None:
                    help="lateral: on a steady cycle, answer the PD chosen over the family of models the measured "
                         "point allows (uavsim.ident.family, under a second; the answer's family); default on for "
                         "lateral loops")
-    p.add_argument("--second-run", metavar="FILE",
+    p.add_argument("--second-run", metavar="FILE", default="auto",
                    help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "
-                        "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint)")
+                        "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint); "
+                        "default auto: on altitude and attitude sessions, the session's run at beta -0.3 where it "
+                        "holds one; none: the first run alone")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
                            optimum=args.optimum, decision=args.decision, guard=args.guard,
-                           second_run=args.second_run, family=args.family)
+                           second_run=None if args.second_run == "none" else args.second_run, family=args.family)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)
@@ -86,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(ans)
         return 0
+    sr = ans.get("second_run")
+    if sr is not None:
+        eprint(f"second run {sr['run']} (beta {sr['beta']:g}) " + (f"not used: {sr['skipped']}" if "skipped" in sr
+                                                                  else "weighs the belief"))
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
            "gains_source": ans["gains_source"], "period_s": ans["oscillation"]["period"],
            "amplitude": ans["oscillation"]["amplitude"]}

@@ -367,7 +367,8 @@ def identify_base(session: Session, models: str | Path | None = None) -> tuple[M
         ans = None
         for r in relays:  # the first relay run that identification accepts (one may have lost its cycle)
             try:
-                ans = identify_session(path, models=models, run=r.spec.file)
+                # one point: the workflow's figures were measured on one run's base models
+                ans = identify_session(path, models=models, run=r.spec.file, second_run=None)
                 break
             except UserError as exc:
                 refusals.append(f"{r.spec.file}: {exc}")
@@ -393,7 +394,7 @@ def _identify_without_duty(path: Path, models: str | Path | None, relays: list) 
 
     for r in relays:
         try:
-            ans = identify_session(path, models=models, run=r.spec.file, duty_check=False)
+            ans = identify_session(path, models=models, run=r.spec.file, second_run=None, duty_check=False)
         except UserError:
             continue
         ans["duty_check"] = False

@@ -53,10 +53,12 @@ In the same run, on the same episodes (controls and alternatives):
   class's: ``optimum="auto"``), ``K_true`` (the true ``K``); and the oracle rows with
   the MRFT-point estimate (``*_K_mrft``).
 
-With ``second_beta`` (``uavsim evaluate --second-beta -0.3``) every process also flies a
-second relay run at that ``beta`` (its own settings from the same hover, the same sensor
-noise in output units) and the answer weighs its belief by both measured points
-(``uavsim.ident.twopoint``); the controls are then those of that answer.
+On the inner loops (``uavsim.ident.twopoint.SECOND_RUN_LOOPS``) every process also flies a
+second relay run at ``SECOND_BETA`` (-0.3; ``second_beta``, ``uavsim evaluate --second-beta``:
+another beta, or ``none`` for the paper's one run), with its own settings from the same hover and
+the same sensor noise in output units, and the answer weighs its belief by both measured points
+(``uavsim.ident.twopoint``), as identification of a session holding such a run does; the
+controls are then those of that answer.
 
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
@@ -94,10 +96,11 @@ from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table
 from uavsim.ident.guard import answer_guard
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle, second_cycle
+from uavsim.ident.twopoint import SECOND_BETA, SECOND_RUN_AUTO, SECOND_RUN_LOOPS
 from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
-__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "draw_processes", "noise_plan", "evaluate",
+__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "second_beta_for", "draw_processes", "noise_plan", "evaluate",
            "summarize", "markdown"]
 
 #: noise levels (noise amplitude / cycle amplitude); level 0 is noise-free
@@ -142,7 +145,9 @@ class EvalSpec:
     combine : how several looks' beliefs combine (``uavsim.ident.select.cycle_activations``; None: the default)
     second_beta : a second relay run at this ``beta`` on every process (its own settings from the hover,
         the same sensor noise in output units), whose measured point weighs the belief
-        (``uavsim.ident.twopoint``); None: one run, the paper's method
+        (``uavsim.ident.twopoint``); None: one run, the paper's method; ``"auto"`` (default):
+        ``SECOND_BETA`` on the loops of ``SECOND_RUN_LOOPS`` (what identification of a session holding
+        that run does), one run elsewhere (``second_beta_for``)
     bias_trim : the relays' bias trim (``uavsim.formats.session.RELAY_BIAS_TRIMS``); None: the recipe's
     family : lateral: steady cycles answer the PD of the measured point's model family
         (``uavsim.ident.family``); None: identification's default (on); the row ``answer_table``
@@ -165,10 +170,21 @@ class EvalSpec:
     guard: bool | None = None
     inputs: str | None = None
     combine: str | None = None
-    second_beta: float | None = None
+    second_beta: float | str | None = SECOND_RUN_AUTO
     bias_trim: str | None = None
     family: bool | None = None
     cycles: int | None = None
+
+
+def second_beta_for(loop: str, second_beta: float | str | None) -> float | None:
+    """The second run's ``beta`` an evaluation flies (``EvalSpec.second_beta``), None for one run."""
+    if second_beta == SECOND_RUN_AUTO:
+        return SECOND_BETA if loop in SECOND_RUN_LOOPS else None
+    if second_beta is None:
+        return None
+    if isinstance(second_beta, str) or not -1 < float(second_beta) < 1:
+        raise UserError(f"second_beta must be \"auto\", None or a beta in (-1, 1), got {second_beta!r}")
+    return float(second_beta)
 
 
 def draw_processes(loop: str, n: int, rng: np.random.Generator, *, K: tuple[float, float],
@@ -511,6 +527,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         raise UserError(f"{recipe}: settings = {rc.test.settings!r}; the evaluation runs the relay with a user's "
                         "settings (settings = \"recommended\"), never ones made from the true cycle")
     lateral = spec.loop == "lateral"
+    beta2 = second_beta_for(spec.loop, spec.second_beta)
     default_family(spec.loop, spec.family)  # asked of an inner loop: the one-line error before any flight
     if (rc.loop == "lateral") != lateral or (not lateral and rc.loop != spec.loop):
         raise UserError(f"{recipe}: a {rc.loop} recipe, the evaluation is of {spec.loop}")
@@ -526,8 +543,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         r = rc if a is None else replace(rc, att_classes=(a,))
         sim_seed = spec.seed if a is None else spec.seed * 100 + a
         sim = _simulate(params, r, sim_seed, (kind, level), spec.chunk, log)
-        sim2 = None if spec.second_beta is None else _simulate_second(params, r, sim_seed, (kind, level),
-                                                                      spec.second_beta, spec.chunk, log)
+        sim2 = None if beta2 is None else _simulate_second(params, r, sim_seed, (kind, level), beta2, spec.chunk,
+                                                           log)
         # the MuJoCo vehicle flies the attitude PD at the control rate; a grid designed over it says so
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
@@ -546,7 +563,8 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
     refused, level = cat("refused"), cat("level")
     ms = cat("ms")
     out: dict[str, Any] = {
-        "spec": {**asdict(spec), "K": list(spec.K), "levels": list(spec.levels), "cycles": rc.episodes.cycles},
+        "spec": {**asdict(spec), "K": list(spec.K), "levels": list(spec.levels), "cycles": rc.episodes.cycles,
+                 "second_beta": beta2},
         "models": str(models), "recipe": str(recipe), "tool_version": __version__,
         "noise_kinds": list(rc.noise.kinds), "rate_hz": load_bundle(groups[0][1]).rate_hz,
         "rows": _rows(J, refused, level, lateral),
@@ -554,8 +572,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         "identify_ms": {"median": float(np.nanmedian(ms)), "p95": float(np.nanpercentile(ms, 95))} if np.isfinite(
             ms).any() else {},
         "episodes": _episodes(per),
-        **({"second_run": {"beta": spec.second_beta, "two_points": int(cat("second").sum())}}
-           if spec.second_beta is not None else {}),
+        **({"second_run": {"beta": beta2, "two_points": int(cat("second").sum())}} if beta2 is not None else {}),
         "wall_s": time.perf_counter() - t0,
     }
     if lateral:

@@ -54,6 +54,7 @@ from uavsim.ident.family import default_family, family_applies, family_gains, po
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
+from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -229,7 +230,7 @@ def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
                      optimum: str = "never", decision: str | None = None, guard: bool | None = None,
-                     second_run: str | None = None, family: bool | None = None,
+                     second_run: str | None = SECOND_RUN_AUTO, family: bool | None = None,
                      duty_check: bool = True) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
@@ -251,7 +252,11 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         ``identify_cycle``'s.
     second_run : str or None
         File name of a second relay run of the session at another ``beta`` (``-0.3``:
-        ``uavsim.ident.twopoint.SECOND_BETA``) whose measured point weighs the belief; None: one run.
+        ``uavsim.ident.twopoint.SECOND_BETA``) whose measured point weighs the belief; None: one run;
+        ``"auto"`` (default): on the loops of ``uavsim.ident.twopoint.SECOND_RUN_LOOPS``, the session's
+        relay run at ``SECOND_BETA`` where it holds one (``auto_second_run``), else one run. A run
+        found so that holds no cycle leaves one point, and the answer's ``second_run`` says why
+        (``skipped``); a run named that holds none is an error.
     duty_check : bool
         Refuse a cycle whose duty a network trained on bias-trimmed relays never saw
         (``uavsim.ident.cycle.duty_refusal``). The gap workflow turns it off for a base model
@@ -288,7 +293,10 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} holds a {b.loop} network, the session is {s.loop}")
     if fam == "lateral" and b.att_class not in (None, attitude_class):
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
-    second = None
+    second, skipped = None, None
+    auto = second_run == SECOND_RUN_AUTO
+    if auto:
+        second_run = auto_second_run(s.runs, r.spec.file, fam)
     if second_run is not None:
         r2 = next((x for x in s.runs if x.spec.file == second_run and x.spec.kind in RELAY_KINDS), None)
         if r2 is None:
@@ -301,13 +309,17 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
             second = second_cycle(r2.data.y, relay_command(r2.data.u, h2, b2, r2.spec.bias_trim),
                                   rate_hz=s.control_rate_hz, h=h2, bias=b2, cycles=b.cycles)
         except NoOscillation as exc:
-            raise UserError(f"session {path}: second run {second_run}: {exc}") from None
+            if not auto:
+                raise UserError(f"session {path}: second run {second_run}: {exc}") from None
+            skipped = str(exc)  # a run found, not asked for: one point, and the answer says why
     h, bias = float(r.spec.h), float(r.spec.bias or 0.0)
     ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim), rate_hz=s.control_rate_hz,
                           h=h, bias=bias, bundle=b, beta=r.spec.beta, optimum=optimum,
                           attitude=attitude, decision=decision, guard=guard, second=second, family=family)
     ans["loop"] = s.loop
     ans["run"] = r.spec.file
+    if skipped is not None:
+        ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta), "skipped": skipped}
     if second is not None:
         ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta),
                              "gain": abs(second.response), "phase_deg": math.degrees(np.angle(second.response)),

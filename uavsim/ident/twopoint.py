@@ -23,9 +23,14 @@ gain estimate and the fitted models stay those of the network's run.
 
 On development seeds 11-14 (300 off-grid processes each, noise 0-20 %) it lowered the
 inner loops' median J by 0.006-0.017 and the p95 on all eight sets against one run; the
-same weighing from the first point alone did not. On report seed 2035 altitude gained on
-every figure, attitude and lateral gained at the median but answered more unstable gains
-(docs/results/identification.md): it is opt-in (``uavsim identify --second-run``).
+same weighing from the first point alone did not. On report seed 2035 (5-cycle attitude runs,
+untrimmed relays, no guard) attitude and lateral answered more unstable gains, so it was opt-in.
+With today's identification (trimmed relays, the guard, attitude runs of 13 cycles) it lowered
+the p95 on every one of development seeds 11-20 of both inner loops
+(docs/results/identification.md), so the inner loops use it by default: identification of a
+session takes its relay run at ``SECOND_BETA`` where it holds one (``SECOND_RUN_LOOPS``,
+``auto_second_run``; ``uavsim identify --second-run``), and ``uavsim evaluate`` flies one. Lateral
+loops were not measured with it again and keep one run unless told.
 
     from uavsim.ident.twopoint import two_point_activations
     act2 = two_point_activations(bundle, act, f1, f2)   # f1: the network's run, f2: the run at SECOND_BETA
@@ -42,11 +47,16 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.ident.response import class_response, measured_phase, point_sigmas
 from uavsim.learning.decision import softmax
 
-__all__ = ["SECOND_BETA", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA", "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S",
-           "two_point_fit", "two_point_activations"]
+__all__ = ["SECOND_BETA", "SECOND_RUN_LOOPS", "SECOND_RUN_AUTO", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA",
+           "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S", "auto_second_run", "two_point_fit", "two_point_activations"]
 
 #: the second run's MRFT parameter a user flies
 SECOND_BETA = -0.3
+#: loops whose identification takes a session's run at ``SECOND_BETA`` as the second point unless told
+#: otherwise, and whose ``uavsim evaluate`` flies one (module docstring)
+SECOND_RUN_LOOPS = ("altitude", "attitude")
+#: ``identify_session(second_run=...)``: find the second run in the session
+SECOND_RUN_AUTO = "auto"
 #: floors of each point's measured uncertainty: std of log |G| and of its phase (deg)
 SIGMA_FLOOR = (0.01, 0.5)
 #: added (in quadrature) to every point after the first: log |G|, phase (deg)
@@ -55,6 +65,24 @@ EXTRAPOLATION_SIGMA = (0.05, 3.0)
 TAU_LOG_SIGMA = 0.5
 #: s, keeps the log of the box's sub-millisecond delays from dominating
 TAU_LOG_OFFSET_S = 0.001
+
+
+def auto_second_run(runs, first: str, loop: str) -> str | None:
+    """The file of the session's first relay run at ``SECOND_BETA`` other than ``first``, on a loop of
+    ``SECOND_RUN_LOOPS``; None where the loop is not one or the session holds no such run.
+
+    ``runs``: the session's runs (``uavsim.formats.session``: each with ``spec.kind``, ``spec.beta``,
+    ``spec.file``).
+    """
+    from uavsim.formats.session import RELAY_KINDS
+
+    if loop not in SECOND_RUN_LOOPS:
+        return None
+    for r in runs:
+        if (r.spec.kind in RELAY_KINDS and r.spec.file != first and r.spec.beta is not None
+                and abs(float(r.spec.beta) - SECOND_BETA) < 1e-6):
+            return r.spec.file
+    return None
 
 
 def _sigmas(f: CycleFeatures, extra: tuple[float, float]) -> tuple[float, float]:
