@@ -26,8 +26,9 @@ inner loops' median J by 0.006-0.017 and the p95 on all eight sets against one r
 same weighing from the first point alone did not. On report seed 2035 (5-cycle attitude runs,
 untrimmed relays, no guard) attitude and lateral answered more unstable gains, so it was opt-in.
 With today's identification (trimmed relays, the guard, attitude runs of 13 cycles) it lowered
-the p95 on every one of development seeds 11-20 of both inner loops
-(docs/results/identification.md), so the inner loops use it by default: identification of a
+the p95 on all of development seeds 11-20 of attitude (median over the seeds 1.103 -> 1.083) and
+on 9 of 10 of altitude (1.108 -> 1.104; the tenth +0.0007), with fewer unstable answers and a
+lower max (docs/results/identification.md), so the inner loops use it by default: identification of a
 session takes its relay run at ``SECOND_BETA`` where it holds one (``SECOND_RUN_LOOPS``,
 ``auto_second_run``; ``uavsim identify --second-run``), and ``uavsim evaluate`` flies one. Lateral
 loops were not measured with it again and keep one run unless told.
