@@ -147,7 +147,8 @@ def test_identified_base_is_used_and_said(monkeypatch):
 def test_identification_falls_back_to_the_next_relay_run(monkeypatch):
     import uavsim.ident.session as ident
 
-    def fake(path, models=None, run=None):
+    def fake(path, models=None, run=None, second_run="auto"):
+        assert second_run is None  # the workflow's base models are one run's
         if run == "r0.csv":
             raise UserError("no steady state")
         return {
@@ -184,7 +185,8 @@ def test_a_relay_refused_for_its_duty_alone_is_identified_without_the_check(monk
     assert duty is not None
     seen = []
 
-    def fake(path, models=None, run=None, duty_check=True):
+    def fake(path, models=None, run=None, second_run="auto", duty_check=True):
+        assert second_run is None
         seen.append((run, duty_check))
         if run == "r0.csv":
             raise UserError("no steady state")

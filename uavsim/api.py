@@ -28,7 +28,8 @@ PathLike = str | os.PathLike
 
 
 def identify_session(session: PathLike, models: PathLike | None = None, *, run: str | None = None,
-                     attitude_class: int | None = None, optimum: str = "never") -> dict[str, Any]:
+                     attitude_class: int | None = None, optimum: str = "never",
+                     second_run: str | None = "auto") -> dict[str, Any]:
     """Identify a loop from a session's relay run (DNN-NP-MRFT), without torch.
 
     Parameters
@@ -45,6 +46,10 @@ def identify_session(session: PathLike, models: PathLike | None = None, *, run: 
     optimum : ``"never"``, ``"auto"`` or ``"always"``
         Also compute the identified model's own optimum at the control rate (~10-20 ms) and answer
         it when the model is off the grid (``auto``) or always; default: the table's answer only.
+    second_run : str, optional
+        CSV file name of a second relay run at another beta whose measured point weighs the belief;
+        ``"auto"`` (default): on altitude and attitude sessions, the session's run at beta -0.3 where
+        it holds one; None: the first run alone.
 
     Returns
     -------
@@ -55,7 +60,8 @@ def identify_session(session: PathLike, models: PathLike | None = None, *, run: 
     """
     from uavsim.ident.session import identify_session as _identify
 
-    return _identify(session, models=models, run=run, attitude_class=attitude_class, optimum=optimum)
+    return _identify(session, models=models, run=run, attitude_class=attitude_class, optimum=optimum,
+                     second_run=second_run)
 
 
 def plot_identification(session: PathLike, answer: dict[str, Any], png: PathLike) -> str:

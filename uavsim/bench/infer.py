@@ -62,8 +62,9 @@ def _trace(grid, c: int, seconds: float = 10.0, seed: int = 0, beta: float | Non
     from uavsim.lumped.simulate import simulate_relay_batch
 
     p = grid.params_of(c)
-    sim = simulate_relay_batch("altitude", grid.beta if beta is None else beta, 1.0, 0.005, int(seconds * 200), K=1.0, T_prop=p.T_prop,
-                               T1=p.T1, tau=p.tau)
+    b = grid.beta if beta is None else beta
+    sim = simulate_relay_batch("altitude", b, 1.0, 0.005, int(seconds * 200), K=1.0, T_prop=p.T_prop, T1=p.T1,
+                               tau=p.tau)
     rng = np.random.default_rng(seed)
     y = -sim["e"][0] + 0.05 * grid.amplitude[c] * rng.standard_normal(sim["e"].shape[1])
     return y, sim["u"][0]

@@ -65,8 +65,9 @@ def register(subparsers) -> None:
                    help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
                         "network's dataset recipe's [test] bias_trim")
     p.add_argument("--cycles", type=int, default=None,
-                   help="relay cycles each run flies, the first a transient (default: 13 on attitude and lateral loops, which "
-                        "average their point over up to 12; else the recipe's [episodes] cycles, the training sets' 5)")
+                   help="relay cycles each run flies, the first a transient (default: 13 on attitude and lateral "
+                        "loops, which average their point over up to 12; else the recipe's [episodes] cycles, the "
+                        "training sets' 5)")
     p.add_argument("--chunk", type=int, default=60, help="episodes per MuJoCo batch (default 60)")
     p.add_argument("--markdown", metavar="FILE", help="also write the rows as a markdown table")
     p.add_argument("--out", metavar="FILE", help="write the full result (with every episode) as JSON")

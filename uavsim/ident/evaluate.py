@@ -100,8 +100,8 @@ from uavsim.ident.twopoint import SECOND_BETA, SECOND_RUN_AUTO, SECOND_RUN_LOOPS
 from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
 
-__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "second_beta_for", "draw_processes", "noise_plan", "evaluate",
-           "summarize", "markdown"]
+__all__ = ["LEVELS", "DETUNE", "GOALS", "RUN_CYCLES", "EvalSpec", "second_beta_for", "draw_processes", "noise_plan",
+           "evaluate", "summarize", "markdown"]
 
 #: noise levels (noise amplitude / cycle amplitude); level 0 is noise-free
 LEVELS = (0.0, 0.05, 0.10, 0.15, 0.20)
