@@ -31,7 +31,8 @@ on 9 of 10 of altitude (1.108 -> 1.104; the tenth +0.0007), with fewer unstable 
 lower max (docs/results/identification.md), so the inner loops use it by default: identification of a
 session takes its relay run at ``SECOND_BETA`` where it holds one (``SECOND_RUN_LOOPS``,
 ``auto_second_run``; ``uavsim identify --second-run``), and ``uavsim evaluate`` flies one. Lateral
-loops were not measured with it again and keep one run unless told.
+loops keep one run unless told: measured again on development seeds 11-12, the p95 fell on one
+(1.429 -> 1.342) and rose on the other (1.559 -> 1.570, one more unstable answer).
 
     from uavsim.ident.twopoint import two_point_activations
     act2 = two_point_activations(bundle, act, f1, f2)   # f1: the network's run, f2: the run at SECOND_BETA
