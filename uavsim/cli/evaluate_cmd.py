@@ -83,22 +83,19 @@ def run(args: argparse.Namespace) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from uavsim.errors import UserError
     from uavsim.ident.bundle import default_model_root
-    from uavsim.ident.evaluate import EvalSpec, evaluate, markdown
+    from uavsim.ident.evaluate import EvalSpec, evaluate, markdown, second_beta_for
 
     if args.n < 1 or args.chunk < 1:
         raise UserError("--n and --chunk must be >= 1")
     if not 0 < args.K[0] <= args.K[1]:
         raise UserError(f"--K needs 0 < LO <= HI, got {args.K[0]} {args.K[1]}")
-    second_beta = args.second_beta
-    if second_beta not in ("auto", "none"):
+    second_beta = None if args.second_beta == "none" else args.second_beta
+    if second_beta not in (None, "auto"):
         try:
             second_beta = float(second_beta)
         except ValueError:
             raise UserError(f"--second-beta takes a beta, auto or none, got {second_beta!r}") from None
-        if not -1 < second_beta < 1:
-            raise UserError(f"--second-beta must lie in (-1, 1), got {second_beta}")
-    elif second_beta == "none":
-        second_beta = None
+    second_beta_for(args.loop, second_beta)  # a beta outside (-1, 1): the one-line error before any flight
     recipe = Path(args.recipe) if args.recipe else Path("datasets") / f"{args.loop}.toml"
     if not recipe.is_file():
         raise UserError(f"recipe {recipe} not found (pass --recipe)")

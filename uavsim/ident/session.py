@@ -54,7 +54,7 @@ from uavsim.ident.family import default_family, family_applies, family_gains, po
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
-from uavsim.ident.twopoint import SECOND_BETA, SECOND_RUN_AUTO, auto_second_run
+from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
 
@@ -295,8 +295,8 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         raise UserError(f"{d} is the lateral network of attitude class {b.att_class}, not {attitude_class}")
     second, skipped = None, None
     auto = second_run == SECOND_RUN_AUTO
-    if auto:  # (a network flown at SECOND_BETA itself has no second point to find)
-        second_run = auto_second_run(s.runs, r.spec.file, fam) if abs(SECOND_BETA - b.rule.beta) > 1e-6 else None
+    if auto:
+        second_run = auto_second_run(s.runs, r.spec.file, fam, b.rule.beta)
     if second_run is not None:
         r2 = next((x for x in s.runs if x.spec.file == second_run and x.spec.kind in RELAY_KINDS), None)
         if r2 is None:

@@ -69,16 +69,17 @@ TAU_LOG_SIGMA = 0.5
 TAU_LOG_OFFSET_S = 0.001
 
 
-def auto_second_run(runs, first: str, loop: str) -> str | None:
+def auto_second_run(runs, first: str, loop: str, network_beta: float) -> str | None:
     """The file of the session's first relay run at ``SECOND_BETA`` other than ``first``, on a loop of
-    ``SECOND_RUN_LOOPS``; None where the loop is not one or the session holds no such run.
+    ``SECOND_RUN_LOOPS``; None where the loop is not one, the network itself was trained at
+    ``SECOND_BETA`` (no other point to find), or the session holds no such run.
 
     ``runs``: the session's runs (``uavsim.formats.session``: each with ``spec.kind``, ``spec.beta``,
-    ``spec.file``).
+    ``spec.file``); ``network_beta``: the beta the network's run flies (``ModelBundle.rule.beta``).
     """
     from uavsim.formats.session import RELAY_KINDS
 
-    if loop not in SECOND_RUN_LOOPS:
+    if loop not in SECOND_RUN_LOOPS or abs(float(network_beta) - SECOND_BETA) < 1e-6:
         return None
     for r in runs:
         if (r.spec.kind in RELAY_KINDS and r.spec.file != first and r.spec.beta is not None
