@@ -147,8 +147,9 @@ def test_second_beta_for_each_loop():
     from uavsim.ident.evaluate import second_beta_for
     from uavsim.ident.twopoint import SECOND_BETA
 
-    assert second_beta_for("altitude", "auto") == second_beta_for("attitude", "auto") == SECOND_BETA
-    assert second_beta_for("lateral", "auto") is None and second_beta_for("altitude", None) is None
+    for loop in ("altitude", "attitude", "lateral"):
+        assert second_beta_for(loop, "auto") == SECOND_BETA
+    assert second_beta_for("altitude", None) is None
     assert second_beta_for("lateral", -0.5) == -0.5
     with pytest.raises(UserError, match="second_beta"):
         second_beta_for("altitude", 1.0)
@@ -176,3 +177,17 @@ def test_cycles_set_the_relay_runs_length(three_model, monkeypatch, tmp_path):  
     bad = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     assert "3" in bad.stderr
+
+
+def test_an_answer_without_a_class_counts_for_the_answer_and_as_refused_by_the_class_controls():
+    """A lateral episode answered from its second run alone (no class): the answer's rows score it, the
+    table's answer (a class decision's control) counts it refused, not unstable."""
+    from uavsim.ident.evaluate import _rows
+
+    J = {"answer": np.array([1.0, 1.05, np.inf]), "answer_x0.85": np.array([1.05, 1.1, np.inf]),
+         "answer_table": np.array([1.02, np.inf, np.inf])}
+    rows = _rows(J, np.array([False, False, True]), np.zeros(3), lateral=True,
+                 no_class=np.array([False, True, False]))["all"]
+    assert rows["answer"]["refused"] == 1 and rows["answer"]["unstable"] == 0 and rows["answer"]["max"] == 1.05
+    assert rows["answer_x0.85"]["refused"] == 1 and rows["answer_x0.85"]["max"] == 1.1
+    assert rows["answer_table"]["refused"] == 2 and rows["answer_table"]["unstable"] == 0

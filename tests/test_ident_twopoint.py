@@ -75,7 +75,8 @@ def test_the_second_run_found_in_a_session_is_the_first_other_relay_run_at_secon
             run("c.csv", beta=SECOND_BETA)]
     assert auto_second_run(runs, "a.csv", "altitude", -0.73) == "b.csv"
     assert auto_second_run(runs, "b.csv", "attitude", -0.73) == "c.csv"  # never the first run itself
-    assert auto_second_run(runs, "a.csv", "lateral", -0.73) is None  # not measured there: one run
+    assert auto_second_run(runs, "a.csv", "lateral", -0.73) == "b.csv"
+    assert auto_second_run(runs, "a.csv", "roll", -0.73) is None  # not a loop family
     assert auto_second_run(runs[:2], "a.csv", "altitude", -0.73) is None
     assert auto_second_run([run("s.csv", kind="step", beta=SECOND_BETA), *runs[:1]], "a.csv", "altitude",
                            -0.73) is None

@@ -48,8 +48,9 @@ def identify_session(session: PathLike, models: PathLike | None = None, *, run: 
         it when the model is off the grid (``auto``) or always; default: the table's answer only.
     second_run : str, optional
         CSV file name of a second relay run at another beta whose measured point weighs the belief;
-        ``"auto"`` (default): on altitude and attitude sessions, the session's run at beta -0.3 where
-        it holds one; None: the first run alone.
+        ``"auto"`` (default): the session's run at beta -0.3 where it holds one; None: the first run
+        alone. On lateral sessions it also pins the family of models the first point allows, and
+        answers alone where the first run is refused (``uavsim.ident.family``).
 
     Returns
     -------

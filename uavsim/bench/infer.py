@@ -169,7 +169,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             t6 = time.perf_counter()
             identify_arrays(y_slow, u_slow, beta=g.beta, decision=table_decision, guard=False, **kw)
             t7 = time.perf_counter()
-            f2 = second_cycle(y2, u2, rate_hz=200.0, h=1.0, bias=0.0, cycles=b.cycles)
+            f2 = second_cycle(y2, u2, rate_hz=200.0, h=1.0, bias=0.0, cycles=b.cycles, loop=b.loop)
             identify_arrays(y, u, beta=g.beta, second=f2, **kw)
             t8 = time.perf_counter()
             t_pre[i], t_net[i], t_all[i], t_base[i], t_grd[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4

@@ -59,8 +59,9 @@ def register(subparsers) -> None:
                    help="with --inputs each: how the cycles' beliefs combine (default mean: their mean probabilities)")
     p.add_argument("--second-beta", default="auto", metavar="BETA",
                    help="also fly a second relay run at this beta on every process and weigh the network's belief "
-                        "by how each class fits both measured points (uavsim.ident.twopoint); default auto: -0.3 on "
-                        "altitude and attitude, one run on lateral loops; none: one run (the paper's method)")
+                        "by how each class fits both measured points (uavsim.ident.twopoint; lateral: the family of "
+                        "models too, uavsim.ident.family); default auto: -0.3 on every loop; none: one run (the "
+                        "paper's method)")
     p.add_argument("--bias-trim", choices=["off", "duty"], default=None,
                    help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
                         "network's dataset recipe's [test] bias_trim")

@@ -60,8 +60,9 @@ def register(subparsers) -> None:
     p.add_argument("--second-run", metavar="FILE", default="auto",
                    help="a second relay run of the session at another beta (e.g. -0.3): each class is fitted to "
                         "both measured points and the network's belief weighed by that fit (uavsim.ident.twopoint); "
-                        "default auto: on altitude and attitude sessions, the session's run at beta -0.3 where it "
-                        "holds one; none: the first run alone")
+                        "default auto: the session's run at beta -0.3 where it holds one (lateral: it also keeps "
+                        "the family of models to those both points allow, and answers alone where the first run "
+                        "is refused); none: the first run alone")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -92,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
     if sr is not None:
         eprint(f"second run {sr['run']} (beta {sr['beta']:g}) " + (f"not used: {sr['skipped']}" if "skipped" in sr
                                                                   else "weighs the belief"))
+    refused = (ans.get("family") or {}).get("refused")
+    if refused:
+        eprint(f"refused {refused}; answered from the second run {ans['run']} alone: the PD of its point's "
+               "family, no class")
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
            "gains_source": ans["gains_source"], "period_s": ans["oscillation"]["period"],
            "amplitude": ans["oscillation"]["amplitude"]}

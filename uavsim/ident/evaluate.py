@@ -53,12 +53,14 @@ In the same run, on the same episodes (controls and alternatives):
   class's: ``optimum="auto"``), ``K_true`` (the true ``K``); and the oracle rows with
   the MRFT-point estimate (``*_K_mrft``).
 
-On the inner loops (``uavsim.ident.twopoint.SECOND_RUN_LOOPS``) every process also flies a
+On every loop (``uavsim.ident.twopoint.SECOND_RUN_LOOPS``) every process also flies a
 second relay run at ``SECOND_BETA`` (-0.3; ``second_beta``, ``uavsim evaluate --second-beta``:
 another beta, or ``none`` for the paper's one run), with its own settings from the same hover and
 the same sensor noise in output units, and the answer weighs its belief by both measured points
 (``uavsim.ident.twopoint``), as identification of a session holding such a run does; the
-controls are then those of that answer.
+controls are then those of that answer. A lateral process whose first run is refused but whose second
+holds a steady cycle is answered from that run alone (``identify_second_point``): its answer counts,
+and the class decision's controls (``answer_table`` and the like) count it as refused by them.
 
 Lateral loops: ``n`` processes per attitude class ``a`` (``T2``, outer delay, ``K``
 in the lateral box) over that class's attitude loop as the bundle of
@@ -95,7 +97,7 @@ from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
-from uavsim.ident.session import identify_cycle, second_cycle
+from uavsim.ident.session import identify_cycle, identify_second_point, second_cycle
 from uavsim.ident.twopoint import SECOND_BETA, SECOND_RUN_AUTO, SECOND_RUN_LOOPS
 from uavsim.learning.decision import decide, softmax
 from uavsim.lumped.params import BOX_KEYS, RANGES, LumpedParams, box_coordinates, nearest_centre
@@ -345,22 +347,27 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         y, u = _run(sim, i)
+        t0 = time.perf_counter()
+        f2 = None
+        if sim2 is not None:
+            try:
+                f2 = second_cycle(*_run(sim2, i), rate_hz=rate, h=h, bias=float(sim2["bias"][i]),
+                                  cycles=bundle.cycles, loop=bundle.loop)
+            except NoOscillation:
+                f2 = None
         try:
-            t0 = time.perf_counter()
             f = extract_cycle(y, u, bundle=bundle, inputs=inputs, **kw)
-            f2 = None
-            if sim2 is not None:
-                try:
-                    f2 = second_cycle(*_run(sim2, i), rate_hz=rate, h=h, bias=float(sim2["bias"][i]),
-                                      cycles=bundle.cycles)
-                except NoOscillation:
-                    f2 = None
             res["second"][i] = f2 is not None
             res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard,
                                                combine=combine, second=f2, family=family)
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
-            res["why"][i] = str(exc)
+            a2 = None if f2 is None else identify_second_point(f2, bundle, refused=str(exc), family=family)
+            if a2 is not None:  # answered from the second run alone: no class, no controls of one
+                res["answers"][i], res["second"][i] = a2, True
+                res["ms"][i] = 1e3 * (time.perf_counter() - t0)
+            else:
+                res["why"][i] = str(exc)
             try:
                 f = features(y, u, rate, h, kw["bias"], bundle.input_length, cycles=bundle.cycles,
                              response_cycles=response_cycles(bundle.loop))
@@ -396,17 +403,20 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
     nan = lambda: np.full(n, np.nan)  # noqa: E731 - not computed (no cycle to measure)
     J: dict[str, np.ndarray] = {}
     ans = ids["answers"]
-    got = np.array([a is not None for a in ans])
-    gi = np.flatnonzero(got)
-    col = lambda key, sub: np.array([ans[i][key][sub] for i in gi], dtype=np.float64)  # noqa: E731
+    ga = np.flatnonzero([a is not None for a in ans])
+    # the answers with a class (not those made from a second run alone): the controls of a class decision
+    gi = np.flatnonzero([a is not None and a["class"] is not None for a in ans])
     J["answer"] = np.full(n, _FAIL)
     J[f"answer_x{DETUNE:g}"] = np.full(n, _FAIL)
     J["answer_guarded"] = np.full(n, _FAIL)
     J["answer_table"] = np.full(n, _FAIL)
+    if ga.size:
+        kp, kd, fhz = (np.array([ans[i]["gains"][k] for i in ga], dtype=np.float64)
+                       for k in ("kp", "kd", "derivative_filter_hz"))
+        J["answer"][ga] = _score(fam, rate, truth, q_opt, ga, kp, kd, fhz)
+        J[f"answer_x{DETUNE:g}"][ga] = _score(fam, rate, truth, q_opt, ga, DETUNE * kp, DETUNE * kd, fhz)
+    col = lambda key, sub: np.array([ans[i][key][sub] for i in gi], dtype=np.float64)  # noqa: E731
     if gi.size:
-        kp, kd, fhz = (col("gains", k) for k in ("kp", "kd", "derivative_filter_hz"))
-        J["answer"][gi] = _score(fam, rate, truth, q_opt, gi, kp, kd, fhz)
-        J[f"answer_x{DETUNE:g}"][gi] = _score(fam, rate, truth, q_opt, gi, DETUNE * kp, DETUNE * kd, fhz)
         # the guard on the table's answer (the answers' own factor where identification applied it)
         tkp, tkd, tfhz = (col("gains_table", k) for k in ("kp", "kd", "derivative_filter_hz"))
         if all("guard" in ans[i] for i in gi):
@@ -481,6 +491,11 @@ def _variants(bundle: ModelBundle, truth: dict[str, np.ndarray], q_opt: np.ndarr
         tab = table_gains(bundle, c, K_hat)
         J["optimum_when_off_grid"][gi] = np.where(off, J["fitted_optimum"][gi], _score(
             fam, rate, truth, q_opt, gi, tab["kp"], tab["kd"], tab["derivative_filter_hz"]))
+    # a class decision's controls have nothing to say of an answer made without a class: not computed
+    no_class = np.setdiff1d(ga, gi)
+    for k in J:
+        if k.startswith("answer_") and k != f"answer_x{DETUNE:g}":
+            J[k][no_class] = np.nan
     return J
 
 
@@ -489,8 +504,12 @@ def _failed_if_nan(j: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(j), _FAIL, j)
 
 
-def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, lateral: bool) -> dict[str, Any]:
-    """Summaries per noise level and over all: answer rows count refusals as failures."""
+def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, lateral: bool,
+          no_class: np.ndarray | None = None) -> dict[str, Any]:
+    """Summaries per noise level and over all: answer rows count refusals as failures, and the rows of a class
+    decision's controls count the answers made without a class (``no_class``: from a second run alone) as
+    refused by them."""
+    no_class = np.zeros(refused.shape, bool) if no_class is None else no_class
     out: dict[str, Any] = {}
     groups = [("all", np.ones(level.size, bool))] + [(f"{lv:.0%}", np.isclose(level, lv)) for lv in np.unique(level)]
     for gname, sel in groups:
@@ -501,7 +520,8 @@ def _rows(J: dict[str, np.ndarray], refused: np.ndarray, level: np.ndarray, late
             if answered_only:  # controls: over the episodes they could be computed on
                 rows[name] = summarize(jj[~np.isnan(jj)])
             else:
-                rows[name] = summarize(_failed_if_nan(jj), refused[sel])
+                ref = refused | no_class if name not in ("answer", f"answer_x{DETUNE:g}") else refused
+                rows[name] = summarize(_failed_if_nan(jj), ref[sel])
         out[gname] = rows
     out["goal"] = _goal_check(out["all"]["answer"], lateral)
     return out
@@ -552,8 +572,10 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2,
                             spec.family)
         refused = np.array([x is None for x in ids["answers"]])
+        no_class = np.array([x is not None and x["class"] is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
-        per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "level": level, "kind": kind,
+        per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "no_class": no_class,
+                    "level": level, "kind": kind,
                     "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "response": ids["response"],
                     "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"], "truth": truth, "sim": sim, "answers": ids["answers"]})
         log(f"{'attitude class ' + str(a) + ': ' if a is not None else ''}identified {int((~refused).sum())}/"
@@ -567,12 +589,13 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
                  "second_beta": beta2},
         "models": str(models), "recipe": str(recipe), "tool_version": __version__,
         "noise_kinds": list(rc.noise.kinds), "rate_hz": load_bundle(groups[0][1]).rate_hz,
-        "rows": _rows(J, refused, level, lateral),
+        "rows": _rows(J, refused, level, lateral, cat("no_class")),
         "refusals": _refusal_reasons([w for p in per for w in p["why"]]),
         "identify_ms": {"median": float(np.nanmedian(ms)), "p95": float(np.nanpercentile(ms, 95))} if np.isfinite(
             ms).any() else {},
         "episodes": _episodes(per),
-        **({"second_run": {"beta": beta2, "two_points": int(cat("second").sum())}} if beta2 is not None else {}),
+        **({"second_run": {"beta": beta2, "two_points": int(cat("second").sum()),
+                           "answered_from_it_alone": int(cat("no_class").sum())}} if beta2 is not None else {}),
         "wall_s": time.perf_counter() - t0,
     }
     if lateral:
@@ -616,8 +639,10 @@ def _episodes(per: list[dict[str, Any]]) -> list[dict[str, Any]]:
                          "response": [float(p["response"][i].real), float(p["response"][i].imag)],
                          "response_period": float(p["response_period"][i]), "network_top": p["top"][i],
                          "refused": p["why"][i], "class": None if a is None else a["class"],
-                         "K_hat": None if a is None else a["table"]["K_hat"],
-                         "decision": None if a is None else a["decision"],
+                         "K_hat": None if a is None or "table" not in a else a["table"]["K_hat"],
+                         "decision": None if a is None else a.get("decision"),
+                         "gains_source": None if a is None else a["gains_source"],
+                         "family_point": None if a is None or "family" not in a else a["family"]["point"],
                          "guard": None if a is None or "guard" not in a else
                          {k: v for k, v in a["guard"].items() if k != "latency_ms"},
                          "J": {k: None if a is None and k.startswith("answer") else _json_j(v[i])

@@ -64,8 +64,9 @@ from uavsim.ident.gains import lateral_model, model_loop_params
 from uavsim.learning.decision import COST_CLIP
 
 __all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
+           "FAMILY_OTHER_CHI2", "FAMILY_UNSTEADY_CHI2",
            "FAMILY_MIN_CYCLES", "FAMILY_REFERENCE_CYCLES", "DEFAULT_FAMILY", "FamilyAnswer", "default_family",
-           "point_spread", "family_applies", "family_members", "family_gains"]
+           "point_spread", "other_point_chi2", "family_applies", "family_members", "family_gains"]
 
 #: log-spaced drag time constants of the box the family is taken at (beside every class's own)
 FAMILY_T2_POINTS = 12
@@ -77,6 +78,10 @@ FAMILY_SCALES = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5)
 FAMILY_PHASE_DEG = 2.0
 #: a cycle whose response cycles spread by more than (std of log |G|, std of phase in deg) keeps the table answer
 FAMILY_SPREAD_LIMITS = (0.1, 1.5)
+#: another point's ``chi2`` above the best member's by more than this rules a member out
+FAMILY_OTHER_CHI2 = 0.5
+#: ``FAMILY_OTHER_CHI2`` for another point whose own cycles are not steady (``family_applies``)
+FAMILY_UNSTEADY_CHI2 = 4.0
 #: fewest response cycles a family answer is made from
 FAMILY_MIN_CYCLES = 3
 #: the response cycles ``FAMILY_SPREAD_LIMITS`` hold for (the runs of 5 cycles they were set on)
@@ -179,9 +184,33 @@ def family_members(bundle: ModelBundle, response: complex, response_period: floa
     return {k: v[ok] for k, v in m.items()}
 
 
+def other_point_chi2(bundle: ModelBundle, members: dict[str, np.ndarray], other, *,
+                     attitude: dict[str, float] | None = None) -> np.ndarray:
+    """How far each member (``family_members``) misses another relay run's measured point, (B,).
+
+    ``other``: that run's ``CycleFeatures`` (its ``response`` at its own frequency, the hold removed
+    as for the family's). The squared misses of ``log |G|`` and of the phase over the point's uncertainty
+    (``uavsim.ident.twopoint.point_uncertainty`` with ``EXTRAPOLATION_SIGMA``: the members are the
+    lumped model, the flight is not exactly one).
+    """
+    from uavsim.data.preprocess import process_response
+    from uavsim.ident.response import attitude_loop_response, unit_response_lateral
+    from uavsim.ident.twopoint import EXTRAPOLATION_SIGMA, point_uncertainty
+
+    att = dict(bundle.attitude or {})
+    att.update(attitude or {})
+    w2 = 2.0 * math.pi / float(other.response_period)
+    G2 = complex(process_response(other.response, other.response_period, rate_hz=bundle.input_rate_hz))
+    mag0, ph0 = unit_response_lateral(w2, members["T2"], attitude_loop_response(w2, att)[0])
+    pred = members["K"] * mag0 * np.exp(1j * (ph0 - w2 * members["tau"]))
+    sg, sp = point_uncertainty(other, EXTRAPOLATION_SIGMA)
+    return (np.log(abs(G2) / np.abs(pred)) / sg) ** 2 + (np.angle(G2 / pred) / sp) ** 2
+
+
 def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response_period: float, *,
                  spread=(0.0, 0.0), attitude: dict[str, float] | None = None, scales=FAMILY_SCALES,
-                 phase_deg: float = FAMILY_PHASE_DEG, flat: float = FAMILY_FLAT) -> FamilyAnswer | None:
+                 phase_deg: float = FAMILY_PHASE_DEG, flat: float = FAMILY_FLAT, other=None,
+                 other_chi2: float = FAMILY_OTHER_CHI2) -> FamilyAnswer | None:
     """The PD of the measured point's family (module docstring); None where no member holds a stable optimum.
 
     Parameters
@@ -199,6 +228,10 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
         The flight's attitude loop where known better than the bundle's (``fitted_model``'s).
     scales, phase_deg, flat
         ``FAMILY_SCALES``, ``FAMILY_PHASE_DEG``, ``FAMILY_FLAT``.
+    other : CycleFeatures or None
+        Another relay run's cycle at another ``beta``: the family is kept to the members that meet its
+        point too (``other_point_chi2`` within ``FAMILY_OTHER_CHI2`` of the best), each weighed by
+        how well, which tells the members apart where the network does not.
     """
     from uavsim.lumped.sampled import lift, sampled_ise
     from uavsim.tuning.optimal import optimal_gains
@@ -206,13 +239,23 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     if bundle.loop != "lateral":
         raise ValueError("the family answer is the lateral loop's")
     nom = family_members(bundle, response, response_period, attitude=attitude)
-    B = nom["K"].size
-    if B == 0:
+    if nom["K"].size == 0:
         return None
+    chi2, allowed = None, np.inf
+    if other is not None:  # the family is the members both points allow
+        chi2 = other_point_chi2(bundle, nom, other, attitude=attitude)
+        allowed = float(chi2.min()) + other_chi2
+        keep = chi2 <= allowed
+        nom, chi2 = {k: v[keep] for k, v in nom.items()}, chi2[keep]
+    B = nom["K"].size
     w = np.full(B, flat / B)
     p = np.asarray(p, dtype=np.float64).ravel()
     on = nom["cls"] >= 0
     w[on] += (1.0 - flat) * p[nom["cls"][on]]
+    if chi2 is not None:
+        with np.errstate(divide="ignore"):
+            lw = np.log(w) - 0.5 * chi2
+        w = np.exp(lw - lw.max())
     w /= w.sum()
     pn = model_loop_params(bundle, nom)
     with np.errstate(all="ignore"):
@@ -225,6 +268,9 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     kg = math.exp(min(float(spread[0]), 1.0))
     moved = [family_members(bundle, complex(response) * np.exp(1j * dph), response_period, attitude=attitude,
                             gain_factor=gf) for dph, gf in ((-d, 1.0), (d, 1.0), (0.0, kg), (-d, kg))]
+    if other is not None:
+        moved = [{k: v[other_point_chi2(bundle, m, other, attitude=attitude) <= allowed] for k, v in m.items()}
+                 for m in moved]
     allm = [pn] + [model_loop_params(bundle, m) for m in moved if m["K"].size]
     every = {k: (np.concatenate([q[k] for q in allm]) if isinstance(v, np.ndarray) else v) for k, v in pn.items()}
     M = every["K"].size

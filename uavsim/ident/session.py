@@ -50,13 +50,21 @@ from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.consistent import consistent_activations
 from uavsim.ident.cycle import extract_cycle
-from uavsim.ident.family import default_family, family_applies, family_gains, point_spread
+from uavsim.ident.family import (
+    FAMILY_OTHER_CHI2,
+    FAMILY_UNSTEADY_CHI2,
+    default_family,
+    family_applies,
+    family_gains,
+    point_spread,
+)
 from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
 
-__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_arrays", "identify_session", "write_model"]
+__all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_second_point", "identify_arrays",
+           "identify_session", "write_model"]
 
 #: when the fitted model's optimum is computed and answered (``identify_cycle``)
 OPTIMUM_MODES = ("never", "auto", "always")
@@ -174,14 +182,18 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                                     "ise": float(opt.ise[0]), "latency_ms": ms}
             ans["gains"] = {k: ans["gains_optimum"][k] for k in _GAIN_KEYS}
             ans["gains_source"] = "optimum"
-    if default_family(bundle.loop, family) and ans["gains_source"] == "table" and family_applies(
-            f.response_spread, f.response_cycles):
+    # the family of the first steady point (the network's run's, else the second run's), kept to the members
+    # the other point allows: more of them where that one is not steady (its error is not its spread's)
+    steady = [x is not None and family_applies(x.response_spread, x.response_cycles) for x in (f, second)]
+    if default_family(bundle.loop, family) and ans["gains_source"] == "table" and any(steady):
         t0 = time.perf_counter()
-        fam = family_gains(bundle, dec.p[0], f.response, f.response_period,
-                           spread=point_spread(f.response_spread, f.response_cycles),
-                           attitude=attitude)
+        (a, o), o_steady = ((f, second), steady[1]) if steady[0] else ((second, f), False)
+        fam = family_gains(bundle, dec.p[0], a.response, a.response_period,
+                           spread=point_spread(a.response_spread, a.response_cycles), attitude=attitude, other=o,
+                           other_chi2=FAMILY_OTHER_CHI2 if o_steady else FAMILY_UNSTEADY_CHI2)
         if fam is not None:
-            ans["family"] = {**asdict(fam), "latency_ms": 1e3 * (time.perf_counter() - t0)}
+            ans["family"] = {**asdict(fam), "point": "first" if a is f else "second",
+                             "latency_ms": 1e3 * (time.perf_counter() - t0)}
             ans["gains"] = {"kp": fam.kp, "kd": fam.kd, "derivative_filter_hz": fam.derivative_filter_hz}
             ans["gains_source"] = "family"
     gm = measured_point_gains(np.array([f.response]), np.array([f.response_period]), rule=bundle.rule,
@@ -196,6 +208,39 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     ans["response"] = {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
                        "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}
     return ans
+
+
+def identify_second_point(second: CycleFeatures, bundle: ModelBundle, *, refused: str,
+                          attitude: dict[str, float] | None = None, family: bool | None = None) -> dict[str, Any] | None:
+    """A lateral answer from the second run alone, where the network's run was refused; None where there is none.
+
+    The network reads only its own run's cycle, so nothing tells the classes apart: the belief is flat and the
+    answer is the family's PD (``uavsim.ident.family``) of the second run's point, where that cycle is steady
+    (``family_applies``). ``refused``: why the network's run was (the answer's ``family.refused``). The answer
+    has no ``class`` (None) and no table gains; ``params`` is the family member whose optimum was answered.
+    """
+    if not (default_family(bundle.loop, family) and family_applies(second.response_spread, second.response_cycles)):
+        return None
+    t0 = time.perf_counter()
+    n = bundle.n_classes
+    fam = family_gains(bundle, np.full(n, 1.0 / n), second.response, second.response_period,
+                       spread=point_spread(second.response_spread, second.response_cycles), attitude=attitude)
+    if fam is None:
+        return None
+    att = dict(bundle.attitude or {})
+    att.update(attitude or {})
+    return {"loop": bundle.loop, "class": None, "attitude_class": bundle.att_class,
+            "params": {"K": fam.K, "T_prop": float(att["T_prop"]), "T1": float(att["T1"]), "T2": fam.T2_s,
+                       "tau": fam.tau_s, "tau_in": float(att["tau_in"])},
+            "attitude": {k: float(att[k]) for k in ("att_kp", "att_kd", "att_filter_hz")},
+            "gains": {"kp": fam.kp, "kd": fam.kd, "derivative_filter_hz": fam.derivative_filter_hz},
+            "gains_source": "family",
+            "family": {**asdict(fam), "point": "second", "refused": refused,
+                       "latency_ms": 1e3 * (time.perf_counter() - t0)},
+            "oscillation": {"period": second.period, "amplitude": second.amplitude, "n_cycles": second.n_cycles,
+                            "start": second.start, "stop": second.stop},
+            "response": {"gain": abs(second.response), "phase_deg": math.degrees(np.angle(second.response)),
+                         "omega": 2 * math.pi / second.response_period, "n_cycles": second.response_cycles}}
 
 
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
@@ -216,15 +261,17 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, b
 
 
 def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float,
-                 cycles: int = 1) -> CycleFeatures:
-    """A second relay run's cycle, for its measured point only (``uavsim.ident.twopoint``): any cycle length.
+                 cycles: int = 1, loop: str | None = None) -> CycleFeatures:
+    """A second relay run's cycle, for its measured point only (``uavsim.ident.twopoint``): any cycle length,
+    the point averaged over up to ``second_response_cycles(loop)`` steady cycles.
 
     Raises ``NoOscillation`` where the run holds no usable oscillation.
     """
     from uavsim.data.preprocess import features
+    from uavsim.ident.twopoint import second_response_cycles
 
     return features(np.asarray(y, dtype=np.float64), np.asarray(u, dtype=np.float64), rate_hz, h, bias, len(y),
-                    cycles=cycles)
+                    cycles=cycles, response_cycles=second_response_cycles(loop))
 
 
 def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | None = None, run: str | None = None,
@@ -307,17 +354,25 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         try:
             h2, b2 = float(r2.spec.h), float(r2.spec.bias or 0.0)
             second = second_cycle(r2.data.y, relay_command(r2.data.u, h2, b2, r2.spec.bias_trim),
-                                  rate_hz=s.control_rate_hz, h=h2, bias=b2, cycles=b.cycles)
+                                  rate_hz=s.control_rate_hz, h=h2, bias=b2, cycles=b.cycles, loop=fam)
         except NoOscillation as exc:
             if not auto:
                 raise UserError(f"session {path}: second run {second_run}: {exc}") from None
             skipped = str(exc)  # a run found, not asked for: one point, and the answer says why
     h, bias = float(r.spec.h), float(r.spec.bias or 0.0)
-    ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim), rate_hz=s.control_rate_hz,
-                          h=h, bias=bias, bundle=b, beta=r.spec.beta, optimum=optimum,
-                          attitude=attitude, decision=decision, guard=guard, second=second, family=family)
+    try:
+        ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim),
+                              rate_hz=s.control_rate_hz, h=h, bias=bias, bundle=b, beta=r.spec.beta,
+                              optimum=optimum, attitude=attitude, decision=decision, guard=guard, second=second,
+                              family=family)
+        ans["run"] = r.spec.file
+    except NoOscillation as exc:  # a lateral loop may still answer from a steady second run
+        ans = None if second is None else identify_second_point(second, b, refused=f"{r.spec.file}: {exc}",
+                                                                attitude=attitude, family=family)
+        if ans is None:
+            raise
+        ans["run"] = second_run
     ans["loop"] = s.loop
-    ans["run"] = r.spec.file
     if skipped is not None:
         ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta), "skipped": skipped}
     if second is not None:

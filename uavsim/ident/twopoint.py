@@ -50,15 +50,19 @@ from uavsim.ident.response import class_response, measured_phase, point_sigmas
 from uavsim.learning.decision import softmax
 
 __all__ = ["SECOND_BETA", "SECOND_RUN_LOOPS", "SECOND_RUN_AUTO", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA",
-           "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S", "auto_second_run", "two_point_fit", "two_point_activations"]
+           "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S", "SECOND_RESPONSE_CYCLES", "second_response_cycles",
+           "auto_second_run", "point_uncertainty", "two_point_fit", "two_point_activations"]
 
 #: the second run's MRFT parameter a user flies
 SECOND_BETA = -0.3
 #: loops whose identification takes a session's run at ``SECOND_BETA`` as the second point unless told
 #: otherwise, and whose ``uavsim evaluate`` flies one (module docstring)
-SECOND_RUN_LOOPS = ("altitude", "attitude")
+SECOND_RUN_LOOPS = ("altitude", "attitude", "lateral")
 #: ``identify_session(second_run=...)``: find the second run in the session
 SECOND_RUN_AUTO = "auto"
+#: most steady cycles a second run's point is averaged over, by loop (else ``RESPONSE_CYCLES``, as the inner
+#: loops' two-run default was measured); lateral points pin the family's members (``uavsim.ident.family``)
+SECOND_RESPONSE_CYCLES: dict[str, int] = {"lateral": 12}
 #: floors of each point's measured uncertainty: std of log |G| and of its phase (deg)
 SIGMA_FLOOR = (0.01, 0.5)
 #: added (in quadrature) to every point after the first: log |G|, phase (deg)
@@ -67,6 +71,13 @@ EXTRAPOLATION_SIGMA = (0.05, 3.0)
 TAU_LOG_SIGMA = 0.5
 #: s, keeps the log of the box's sub-millisecond delays from dominating
 TAU_LOG_OFFSET_S = 0.001
+
+
+def second_response_cycles(loop: str | None) -> int:
+    """Most steady cycles a second run of ``loop`` is averaged over (``SECOND_RESPONSE_CYCLES``)."""
+    from uavsim.data.preprocess import RESPONSE_CYCLES
+
+    return SECOND_RESPONSE_CYCLES.get(loop, RESPONSE_CYCLES)
 
 
 def auto_second_run(runs, first: str, loop: str, network_beta: float) -> str | None:
@@ -88,7 +99,7 @@ def auto_second_run(runs, first: str, loop: str, network_beta: float) -> str | N
     return None
 
 
-def _sigmas(f: CycleFeatures, extra: tuple[float, float]) -> tuple[float, float]:
+def point_uncertainty(f: CycleFeatures, extra: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float]:
     """A point's uncertainty (log gain, phase rad): its standard errors (``point_sigmas``), floored
     (``SIGMA_FLOOR``), with ``extra`` (log gain, deg) added in quadrature."""
     sg, sp = point_sigmas(f.response_spread, f.response_cycles, SIGMA_FLOOR)
@@ -114,7 +125,7 @@ def two_point_fit(bundle: ModelBundle, cls, points: list[CycleFeatures]) -> dict
     w = np.array([2.0 * math.pi / f.response_period for f in points])
     G = np.array([complex(process_response(f.response, f.response_period, rate_hz=bundle.input_rate_hz))
                   for f in points])
-    sg, sp = (np.array(s) for s in zip(*(_sigmas(f, EXTRAPOLATION_SIGMA if k else (0.0, 0.0))
+    sg, sp = (np.array(s) for s in zip(*(point_uncertainty(f, EXTRAPOLATION_SIGMA if k else (0.0, 0.0))
                                          for k, f in enumerate(points)), strict=True))
     mag0, ph0 = class_response(bundle, cls, w)
     dg = np.log(np.abs(G))[None, :] - np.log(mag0)
