@@ -210,3 +210,36 @@ def test_a_steady_second_run_answers_where_the_network_s_run_was_refused():
     assert np.isfinite(J).all() and max(J) < 1.2 and np.median(J) < np.median(Jd) - 0.01
     noisy = _point(G2, w2, spread=(0.0, math.radians(3 * FAMILY_SPREAD_LIMITS[1])), cycles=4)
     assert identify_second_point(noisy, b, refused="no steady state") is None
+
+
+def test_identification_makes_the_family_from_the_steady_point_and_keeps_it_to_what_the_other_allows():
+    """``identify_cycle`` on a lateral cycle: both points steady, the family is the first's, kept to fewer
+    members than without the second; the first's cycles disagreeing, the family is made from the second's;
+    neither steady, the table answers."""
+    from uavsim.ident.family import FAMILY_SPREAD_LIMITS
+    from uavsim.ident.session import identify_cycle
+    from uavsim.lumped.lateral import lateral_response_sampled
+
+    sub, b, att = lateral_grid_bundle(A)
+    truth, _, w, G = _off_grid(sub, b, att)
+    t = 3
+    w2 = 0.6 * w[t]
+    G2 = lateral_response_sampled(np.array([w2]), 200.0, **{k: float(v[t]) for k, v in truth.items()
+                                                            if k != "att_rate_hz"})[0][0]
+    b.predictor.cls = t
+
+    def cycle(Gp, wp, **kw):
+        f = _point(Gp, wp, **kw)
+        f.x, f.inputs, f.input_cycles = None, "last", 1
+        return f
+
+    bad = (0.0, math.radians(3 * FAMILY_SPREAD_LIMITS[1]))
+    one = identify_cycle(cycle(G[t], w[t]), b)
+    two = identify_cycle(cycle(G[t], w[t]), b, second=cycle(G2, w2))
+    assert one["family"]["point"] == two["family"]["point"] == "first"
+    assert two["family"]["members"] < one["family"]["members"]
+    anchored = identify_cycle(cycle(G[t], w[t], spread=bad, cycles=4), b, second=cycle(G2, w2))
+    assert anchored["gains_source"] == "family" and anchored["family"]["point"] == "second"
+    neither = identify_cycle(cycle(G[t], w[t], spread=bad, cycles=4), b,
+                             second=cycle(G2, w2, spread=bad, cycles=4))
+    assert neither["gains_source"] == "table" and "family" not in neither

@@ -26,6 +26,23 @@ member, times one of ``FAMILY_SCALES``:
    the one of least belief-weighted ``log(ISE / best ISE)`` over the nominal family
    (clipped like ``J``).
 
+The answer must hold every member stable, so with one point it is the optimum of about the
+most cautious member, whatever the network believes. **A second relay run at another
+frequency** (``other``: ``uavsim.ident.twopoint.SECOND_BETA``) tells the members apart:
+each predicts that run's point too, and the family is kept to the members whose miss
+(``other_point_chi2``, over the point's standard errors with
+``uavsim.ident.twopoint.EXTRAPOLATION_SIGMA``) is within ``FAMILY_OTHER_CHI2`` of the
+best's, ``FAMILY_UNSTEADY_CHI2`` where the other point's own cycles disagree (its error
+is then not its spread's), the moved families likewise; the belief is weighed by
+``exp(-chi2 / 2)``. Identification anchors the family on the network's run where its
+cycle is steady, else on the second run's (``uavsim.ident.session.identify_cycle``), and
+answers from the second run alone where the network's run was refused
+(``identify_second_point``). On development seeds 11-13 (480 off-grid processes each,
+0-20 % noise) the lateral p95 went from 1.429 / 1.559 / 1.463 with one run to 1.075 /
+1.080 / 1.083 (docs/results/identification.md); the two limits were set there (the
+family's tail fell as the first narrowed, 6 -> 2 -> 1 -> 0.5, and flattened at 0.25; the
+second was 0.5 until a noisy first point ruled out the true member on seed 13).
+
 Only a **steady cycle** is answered so (``family_applies``): at least
 ``FAMILY_MIN_CYCLES`` response cycles, whose own responses spread less than
 ``FAMILY_SPREAD_LIMITS``, as a run of ``FAMILY_REFERENCE_CYCLES`` response cycles would
@@ -46,7 +63,7 @@ the table's real-time path, as the fitted optimum is.
     from uavsim.ident.family import family_applies, family_gains
     if family_applies(f.response_spread, f.response_cycles):
         g = family_gains(bundle, p, f.response, f.response_period,
-                         spread=point_spread(f.response_spread, f.response_cycles))
+                         spread=point_spread(f.response_spread, f.response_cycles), other=f2)
         g.kp, g.kd, g.derivative_filter_hz, g.scale, g.T2_s, g.tau_s     # FamilyAnswer (None: no member)
 """
 
@@ -230,8 +247,11 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
         ``FAMILY_SCALES``, ``FAMILY_PHASE_DEG``, ``FAMILY_FLAT``.
     other : CycleFeatures or None
         Another relay run's cycle at another ``beta``: the family is kept to the members that meet its
-        point too (``other_point_chi2`` within ``FAMILY_OTHER_CHI2`` of the best), each weighed by
-        how well, which tells the members apart where the network does not.
+        point too (``other_point_chi2`` within ``other_chi2`` of the best), each weighed by how well,
+        which tells the members apart where the network does not.
+    other_chi2 : float
+        ``FAMILY_OTHER_CHI2``; identification passes ``FAMILY_UNSTEADY_CHI2`` for a point whose own
+        cycles are not steady.
     """
     from uavsim.lumped.sampled import lift, sampled_ise
     from uavsim.tuning.optimal import optimal_gains
@@ -248,6 +268,8 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
         keep = chi2 <= allowed
         nom, chi2 = {k: v[keep] for k, v in nom.items()}, chi2[keep]
     B = nom["K"].size
+    if B == 0:  # no member predicts the other point at all (not a number)
+        return None
     w = np.full(B, flat / B)
     p = np.asarray(p, dtype=np.float64).ravel()
     on = nom["cls"] >= 0

@@ -19,12 +19,15 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
    or always (``optimum="always"``). A lateral loop's steady cycle answers instead the PD
    chosen over the family of models its measured point allows (``uavsim.ident.family``,
-   under a second; ``gains_source`` ``family``);
+   under a second; ``gains_source`` ``family``), kept to the members a second run's point
+   allows too, and anchored on that run's point where only it is steady;
 4. the model: the class's lags with the gain and delay fitted to the measured
    point (``params``: what ``write_model`` stores and the gap workflow simulates).
 
 A session without a usable oscillation is an error (``NoOscillation``, a
-``UserError``), never a guess.
+``UserError``), never a guess. A lateral session whose network run is refused but whose
+second run holds a steady cycle is answered from that run alone
+(``identify_second_point``: the family's PD, no class).
 
     from uavsim.ident import identify_session, write_model
     ans = identify_session("scenarios/sessions/altitude-npmrft", models="training/runs/small")

@@ -30,9 +30,13 @@ the p95 on all of development seeds 11-20 of attitude (median over the seeds 1.1
 on 9 of 10 of altitude (1.108 -> 1.104; the tenth +0.0007), with fewer unstable answers and a
 lower max (docs/results/identification.md), so the inner loops use it by default: identification of a
 session takes its relay run at ``SECOND_BETA`` where it holds one (``SECOND_RUN_LOOPS``,
-``auto_second_run``; ``uavsim identify --second-run``), and ``uavsim evaluate`` flies one. Lateral
-loops keep one run unless told: measured again on development seeds 11-12, the p95 fell on one
-(1.429 -> 1.342) and rose on the other (1.559 -> 1.570, one more unstable answer).
+``auto_second_run``; ``uavsim identify --second-run``), and ``uavsim evaluate`` flies one.
+
+Lateral loops use the second point where it counts there: on the family of models the first
+point allows (``uavsim.ident.family``: ``other``), averaged over up to 12 steady cycles
+(``SECOND_RESPONSE_CYCLES``). The belief weighing alone had moved their p95 either way
+(development seeds 11-12: 1.429 -> 1.342, 1.559 -> 1.570); kept to the members both points
+allow, the family took it to 1.075 / 1.080 / 1.083 on seeds 11-13.
 
     from uavsim.ident.twopoint import two_point_activations
     act2 = two_point_activations(bundle, act, f1, f2)   # f1: the network's run, f2: the run at SECOND_BETA
