@@ -243,3 +243,35 @@ def test_identification_makes_the_family_from_the_steady_point_and_keeps_it_to_w
     neither = identify_cycle(cycle(G[t], w[t], spread=bad, cycles=4), b,
                              second=cycle(G2, w2, spread=bad, cycles=4))
     assert neither["gains_source"] == "table" and "family" not in neither
+
+
+def test_a_lateral_session_whose_network_run_is_refused_is_answered_from_its_second_run(tmp_path, monkeypatch):
+    """``identify_session`` on a lateral session whose run at the network's beta is cut to 1.5 s (refused) and
+    whose run at -0.3 is whole: the family's answer of that run, no class, ``run`` naming it; without the
+    second run the session is an error, as before."""
+    from dataclasses import replace
+
+    import uavsim.ident.session as session
+    from uavsim.control.relay import NPMRFT
+    from uavsim.errors import NoOscillation
+    from uavsim.formats.session import write_session
+    from uavsim.sim.runner import LoopBatch
+    from uavsim.sim.sessions import relay_session
+
+    sub, b, att = lateral_grid_bundle(A)
+    monkeypatch.setattr(session, "resolve_model_dir", lambda *a, **k: tmp_path)
+    monkeypatch.setattr(session, "load_bundle", lambda d: b)
+    p = replace(sub.params_of(3), K=1.2, loop="lateral_y")
+    runs = []
+    for beta, name in ((sub.beta, "np_b073.csv"), (-0.3, "np_b030.csv")):
+        res = LoopBatch([p], dt=0.001, rate_hz=200.0, seed=1).run(NPMRFT(beta, 0.05, 0.01, 0.0, 200.0, 1), 30.0)
+        runs.append(relay_session(res, 0, p, beta=beta, h=0.05, rate_hz=200.0, tau_obs=0.01, a_n=0.0,
+                                  with_model=False, file=name))
+    r0 = runs[0].runs[0]
+    cut = replace(r0, data=replace(r0.data, **{k: getattr(r0.data, k)[:300] for k in ("t", "r", "y", "u")}))
+    sess = write_session(replace(runs[0], runs=[cut, runs[1].runs[0]]), tmp_path / "lat")
+    ans = session.identify_session(sess, attitude_class=A)
+    assert ans["class"] is None and ans["run"] == "np_b030.csv" and ans["gains_source"] == "family"
+    assert ans["family"]["refused"].startswith("np_b073.csv: ") and ans["gains"]["kp"] > 0
+    with pytest.raises(NoOscillation):
+        session.identify_session(sess, attitude_class=A, second_run=None)

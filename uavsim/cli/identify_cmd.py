@@ -90,13 +90,13 @@ def run(args: argparse.Namespace) -> int:
         print_json(ans)
         return 0
     sr = ans.get("second_run")
-    if sr is not None:
-        eprint(f"second run {sr['run']} (beta {sr['beta']:g}) " + (f"not used: {sr['skipped']}" if "skipped" in sr
-                                                                  else "weighs the belief"))
     refused = (ans.get("family") or {}).get("refused")
     if refused:
         eprint(f"refused {refused}; answered from the second run {ans['run']} alone: the PD of its point's "
                "family, no class")
+    elif sr is not None:
+        eprint(f"second run {sr['run']} (beta {sr['beta']:g}) " + (f"not used: {sr['skipped']}" if "skipped" in sr
+                                                                  else "weighs the belief"))
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
            "gains_source": ans["gains_source"], "period_s": ans["oscillation"]["period"],
            "amplitude": ans["oscillation"]["amplitude"]}

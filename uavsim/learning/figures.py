@@ -123,7 +123,8 @@ def identification_png(session: str | os.PathLike, ans: dict[str, Any], out: str
     ax2.set_aspect("equal")
     ax2.set_xlabel("Re G")
     ax2.set_ylabel("Im G")
-    ax2.set_title(f"class {ans['class']}: K={p['K']:.3g}, tau={1e3 * p['tau']:.3g} ms")
+    who = f"class {ans['class']}" if ans["class"] is not None else "family member (no class)"
+    ax2.set_title(f"{who}: K={p['K']:.3g}, tau={1e3 * p['tau']:.3g} ms")
     ax2.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     out = Path(out)
