@@ -77,7 +77,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.ident.bundle import ModelBundle
-from uavsim.ident.gains import lateral_model, model_loop_params
+from uavsim.ident.gains import flight_attitude, lateral_model, model_loop_params
 from uavsim.learning.decision import COST_CLIP
 
 __all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
@@ -214,8 +214,7 @@ def other_point_chi2(bundle: ModelBundle, members: dict[str, np.ndarray], other,
     from uavsim.ident.response import attitude_loop_response, unit_response_lateral
     from uavsim.ident.twopoint import EXTRAPOLATION_SIGMA, point_uncertainty
 
-    att = dict(bundle.attitude or {})
-    att.update(attitude or {})
+    att = flight_attitude(bundle, attitude)
     w2 = 2.0 * math.pi / float(other.response_period)
     G2 = complex(process_response(other.response, other.response_period, rate_hz=bundle.input_rate_hz))
     mag0, ph0 = unit_response_lateral(w2, members["T2"], attitude_loop_response(w2, att)[0])

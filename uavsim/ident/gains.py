@@ -32,7 +32,8 @@ from uavsim.ident.bundle import ModelBundle
 from uavsim.ident.response import fit_response, fit_response_lateral
 from uavsim.tuning.rule import TuningRule
 
-__all__ = ["gain_estimate", "table_gains", "fitted_model", "lateral_model", "model_optimum", "measured_point_gains"]
+__all__ = ["gain_estimate", "table_gains", "fitted_model", "flight_attitude", "lateral_model", "model_optimum",
+           "measured_point_gains"]
 
 
 def gain_estimate(bundle: ModelBundle, cls, G) -> np.ndarray:
@@ -76,13 +77,20 @@ def fitted_model(bundle: ModelBundle, cls, response, response_period, *,
                         rate_hz=bundle.input_rate_hz)
 
 
+def flight_attitude(bundle: ModelBundle, attitude: dict[str, float] | None = None) -> dict[str, float]:
+    """The attitude loop a lateral model closes over: the bundle's, with ``attitude``'s keys where the flight's
+    is known better."""
+    att = dict(bundle.attitude or {})
+    att.update(attitude or {})
+    return att
+
+
 def lateral_model(bundle: ModelBundle, response, response_period, *, T2, tau_class,
                   attitude: dict[str, float] | None = None) -> dict[str, np.ndarray]:
     """Lateral models of drag time constants ``T2`` with the gain and delay that put them on the measured
     response (``fit_response_lateral``, the delay's branch nearest ``tau_class``), over the bundle's
     attitude loop or ``attitude`` where given: ``fitted_model``'s lateral keys, (m,) arrays."""
-    att = dict(bundle.attitude or {})
-    att.update(attitude or {})
+    att = flight_attitude(bundle, attitude)
     m = fit_response_lateral(response, response_period, T2=T2, tau_class=tau_class, attitude=att,
                              rate_hz=bundle.input_rate_hz)
     shape = np.shape(m["K"])

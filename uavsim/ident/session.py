@@ -61,7 +61,13 @@ from uavsim.ident.family import (
     family_gains,
     point_spread,
 )
-from uavsim.ident.gains import fitted_model, measured_point_gains, model_optimum, table_gains
+from uavsim.ident.gains import (
+    fitted_model,
+    flight_attitude,
+    measured_point_gains,
+    model_optimum,
+    table_gains,
+)
 from uavsim.ident.guard import answer_guard, default_guard
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
@@ -75,6 +81,13 @@ OPTIMUM_MODES = ("never", "auto", "always")
 #: than this (s) and this fraction of the class's (a grid level of delay is ~40-60% apart)
 OFF_GRID_TAU = (0.002, 0.25)
 _GAIN_KEYS = ("kp", "kd", "derivative_filter_hz")
+
+
+def _point(f: CycleFeatures) -> dict[str, float]:
+    """A cycle's measured point as answers report it: gain and phase as measured (hold included), its
+    frequency (rad/s) and the response cycles it was averaged over."""
+    return {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
+            "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}
 
 
 def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
@@ -187,8 +200,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
             ans["gains_source"] = "optimum"
     # the family of the first steady point (the network's run's, else the second run's), kept to the members
     # the other point allows: more of them where that one is not steady (its error is not its spread's)
-    steady = [x is not None and family_applies(x.response_spread, x.response_cycles) for x in (f, second)]
-    if default_family(bundle.loop, family) and ans["gains_source"] == "table" and any(steady):
+    fam_on = default_family(bundle.loop, family) and ans["gains_source"] == "table"
+    steady = [fam_on and x is not None and family_applies(x.response_spread, x.response_cycles) for x in (f, second)]
+    if any(steady):
         t0 = time.perf_counter()
         (a, o), o_steady = ((f, second), steady[1]) if steady[0] else ((second, f), False)
         fam = family_gains(bundle, dec.p[0], a.response, a.response_period,
@@ -208,8 +222,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     ans["softmax_top"] = float(dec.p[0, c])
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
                           "stop": f.stop, "inputs": f.inputs, "input_cycles": f.input_cycles}
-    ans["response"] = {"gain": abs(f.response), "phase_deg": math.degrees(np.angle(f.response)),
-                       "omega": 2 * math.pi / f.response_period, "n_cycles": f.response_cycles}
+    ans["response"] = _point(f)
     return ans
 
 
@@ -230,8 +243,7 @@ def identify_second_point(second: CycleFeatures, bundle: ModelBundle, *, refused
                        spread=point_spread(second.response_spread, second.response_cycles), attitude=attitude)
     if fam is None:
         return None
-    att = dict(bundle.attitude or {})
-    att.update(attitude or {})
+    att = flight_attitude(bundle, attitude)
     return {"loop": bundle.loop, "class": None, "attitude_class": bundle.att_class,
             "params": {"K": fam.K, "T_prop": float(att["T_prop"]), "T1": float(att["T1"]), "T2": fam.T2_s,
                        "tau": fam.tau_s, "tau_in": float(att["tau_in"])},
@@ -242,8 +254,7 @@ def identify_second_point(second: CycleFeatures, bundle: ModelBundle, *, refused
                        "latency_ms": 1e3 * (time.perf_counter() - t0)},
             "oscillation": {"period": second.period, "amplitude": second.amplitude, "n_cycles": second.n_cycles,
                             "start": second.start, "stop": second.stop},
-            "response": {"gain": abs(second.response), "phase_deg": math.degrees(np.angle(second.response)),
-                         "omega": 2 * math.pi / second.response_period, "n_cycles": second.response_cycles}}
+            "response": _point(second)}
 
 
 def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float, bundle: ModelBundle,
@@ -379,9 +390,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
     if skipped is not None:
         ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta), "skipped": skipped}
     if second is not None:
-        ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta),
-                             "gain": abs(second.response), "phase_deg": math.degrees(np.angle(second.response)),
-                             "omega": 2 * math.pi / second.response_period, "n_cycles": second.response_cycles}
+        ans["second_run"] = {"run": second_run, "beta": float(r2.spec.beta), **_point(second)}
     ans["model_dir"] = str(d)
     ans["had_model"] = s.model is not None
     # NP-MRFT a_n is a noise amplitude (2 std for Gaussian noise, uavsim.noise.models)
