@@ -93,7 +93,10 @@ def test_cli_small_run(three_model, tmp_path):  # noqa: F811 (fixture)
             assert e["decision"]["decision"] == "blend" and e["J"]["answer_blend"] == e["J"]["answer"]
             # the guard the answer took, as identification reported it (the inner loops' default: on)
             g = e["guard"]
-            assert g["scale"] == min(g["own_scale"], g["belief_scale"]) and 0.5 <= g["scale"] <= 1.0
+            one = g.get("scale_one_point", g["scale"])  # with a second run, the lag family's factor
+            assert one == min(g["own_scale"], g["belief_scale"]) and 0.5 <= g["scale"] <= 1.0
+            if "lag_family" in g:
+                assert g["scale"] == max(one, g["lag_family"]["scale"])
             assert e["J"]["answer_guarded"] == e["J"]["answer"] and "latency_ms" not in g
     assert "| answer |" in md.read_text()
     bad = tmp_path / "fixed.toml"

@@ -191,6 +191,11 @@ def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
     assert sr["run"] == "relay_b030.csv" and sr["beta"] == SECOND_BETA and sr["n_cycles"] >= 1
     assert sr["omega"] < two["response"]["omega"]
     assert auto["second_run"] == sr and auto["gains"] == two["gains"]
+    # an altitude guard backs off no further than the lag family of both points asks (uavsim.ident.lagfamily)
+    gd = two["guard"]
+    assert "lag_family" not in one["guard"] and gd["lag_family"]["members"] > 0
+    assert gd["scale"] == max(gd["scale_one_point"], gd["lag_family"]["scale"])
+    assert two["gains"]["kp"] == pytest.approx(gd["scale"] * two["gains_table"]["kp"])
     # a run found (not named) that holds no cycle leaves one point and says why; named, it is an error
     d = second.data
     short = replace(second, data=replace(d, t=d.t[:100], r=d.r[:100], y=d.y[:100], u=d.u[:100]))

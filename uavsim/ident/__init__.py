@@ -13,6 +13,9 @@ Downstream of ``uavsim.data`` (the shared preprocessing) and ``uavsim.learning``
 - ``gains``: the table's PD for the identified gain; the fitted model's optimum.
 - ``family``: lateral loops' steady cycles: the PD chosen over the family of models the
   measured point allows.
+- ``guard``: the inner loops' back-off where a little more lag would ruin the answer.
+- ``twopoint``, ``lagfamily``: a second relay run's point: the belief weighed by both points; the
+  inner loops' lag pairs both points allow, which the guard backs off no further than.
 - ``session``: the session-level API (``identify_session``, ``write_model``).
 - ``evaluate``: off-grid evaluation against each process's optimum (``uavsim evaluate``).
 

@@ -13,7 +13,8 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
 3. the gains: the table's robust PD of the class over the estimated gain
    ``K_hat`` (``uavsim.ident.gains``), the real-time answer, backed off on the inner
    loops where the answer's fitted model with a few degrees more lag needs it
-   (``uavsim.ident.guard``). With ``optimum``
+   (``uavsim.ident.guard``), with a second run no further than the models both points
+   allow ask (``uavsim.ident.lagfamily``). With ``optimum``
    the fitted model's own optimum at the control rate is computed too (~10-20 ms,
    its latency in the answer) and answered when the fitted model is off the
    grid (``optimum="auto"``: its delay more than ``OFF_GRID_TAU`` from the class's)
@@ -69,8 +70,10 @@ from uavsim.ident.gains import (
     table_gains,
 )
 from uavsim.ident.guard import answer_guard, default_guard
+from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
+from uavsim.learning.decision import softmax
 
 __all__ = ["OPTIMUM_MODES", "OFF_GRID_TAU", "identify_cycle", "identify_second_point", "identify_arrays",
            "identify_session", "write_model"]
@@ -126,7 +129,9 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         (``uavsim.ident.select.cycle_activations``); None: ``DEFAULT_LOOK_COMBINE``.
     second : CycleFeatures or None
         A second relay run's cycle at another ``beta`` (``uavsim.ident.twopoint``): the belief is
-        weighed by how well each class fits both measured points before the decision.
+        weighed by how well each class fits both measured points before the decision; on the loops
+        of ``LAG_GUARD_LOOPS`` the guard backs off no further than the lag family of both points
+        asks (``uavsim.ident.lagfamily``; the guard's ``scale_one_point`` and ``lag_family``).
     family : bool or None
         Lateral only: on a steady cycle (``uavsim.ident.family.family_applies``) answer the PD
         chosen over the family of models the measured point allows (``family_gains``; the
@@ -148,6 +153,7 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     guard = default_guard(bundle.loop, guard)
     act, n_out = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)
+    act_net = act  # the network's own belief (the lag family weighs its members by the points itself)
     if second is not None:  # the belief weighed by how each class fits both measured points
         from uavsim.ident.twopoint import two_point_activations
 
@@ -184,6 +190,12 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         gd = answer_guard(bundle, dec.p[0], c, f.response, f.response_period, kp=float(g_tab["kp"][0]),
                           kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
                           attitude=attitude)
+        if second is not None and bundle.loop in LAG_GUARD_LOOPS:  # no further back than the lag family asks
+            lag = lag_family_scale(bundle, softmax(act_net, bundle.temperature)[0], f, second,
+                                   kp=float(g_tab["kp"][0]), kd=float(g_tab["kd"][0]),
+                                   derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]))
+            gd = {**gd, "scale_one_point": gd["scale"], "scale": max(gd["scale"], lag["scale"]),
+                  "lag_family": lag}
         s = gd["scale"]
         ans["guard"] = {**gd, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
