@@ -20,7 +20,7 @@ member, times one of ``FAMILY_SCALES``:
 3. the candidates: each member's own optimum (``uavsim.tuning.optimal``) times each factor;
 4. the measurement's own error: the family fitted again to the point moved by the
    cycle's phase spread (at least ``FAMILY_PHASE_DEG``) both ways, and with the gain
-   raised by its log-gain spread, alone and with the more lagging phase;
+   raised by its log-gain spread, alone and with either phase;
 5. the answer: the largest factor whose candidates keep the largest share of all those
    models stable (a smaller factor only where it keeps more), and among those candidates
    the one of least belief-weighted ``log(ISE / best ISE)`` over the nominal family
@@ -55,7 +55,7 @@ or unstable at phase spreads of 1.7-2.9 degrees, where the table's answers were
 unstable answer and raised no p95 there. Elsewhere the class decision's table answer
 (``decide_stable``) stays.
 
-Cost: ``optimal_gains`` on 10-35 members and ``5 x members^2`` closed loops per factor
+Cost: ``optimal_gains`` on 10-35 members and ``6 x members^2`` closed loops per factor
 tried: whole identifications of 71-88 ms median and 0.46-0.66 s p95 on one thread of the
 2-core development machine (``uavsim evaluate``'s clock; the answer's ``latency_ms``), off
 the table's real-time path, as the fitted optimum is.
@@ -284,11 +284,13 @@ def family_gains(bundle: ModelBundle, p: np.ndarray, response: complex, response
     good = np.isfinite(opt.ise) & (opt.ise > 0) & np.isfinite(opt.kp) & (opt.kp > 0)
     if not good.any():
         return None
-    # the measurement's own error: the point moved by its phase spread and its gain raised by its gain spread
+    # the measurement's own error: the point moved by its phase spread and its gain raised by its gain spread,
+    # alone and together (less lag with more gain: a PD near a member's optimum can lose a process of almost no
+    # delay and a little more gain that holds it at a few ms)
     d = math.radians(max(phase_deg, math.degrees(float(spread[1]))))
     kg = math.exp(min(float(spread[0]), 1.0))
     moved = [family_members(bundle, complex(response) * np.exp(1j * dph), response_period, attitude=attitude,
-                            gain_factor=gf) for dph, gf in ((-d, 1.0), (d, 1.0), (0.0, kg), (-d, kg))]
+                            gain_factor=gf) for dph, gf in ((-d, 1.0), (d, 1.0), (0.0, kg), (-d, kg), (d, kg))]
     if other is not None:
         moved = [{k: v[other_point_chi2(bundle, m, other, attitude=attitude) <= allowed] for k, v in m.items()}
                  for m in moved]
