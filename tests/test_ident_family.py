@@ -215,7 +215,7 @@ def test_a_steady_second_run_answers_where_the_network_s_run_was_refused():
 def test_identification_makes_the_family_from_the_steady_point_and_keeps_it_to_what_the_other_allows():
     """``identify_cycle`` on a lateral cycle: both points steady, the family is the first's, kept to fewer
     members than without the second; the first's cycles disagreeing, the family is made from the second's;
-    neither steady, the table answers."""
+    neither steady, the table answers; the second run's cycle is steady within twice the first's limits."""
     from uavsim.ident.family import FAMILY_SPREAD_LIMITS
     from uavsim.ident.session import identify_cycle
     from uavsim.lumped.lateral import lateral_response_sampled
@@ -243,6 +243,15 @@ def test_identification_makes_the_family_from_the_steady_point_and_keeps_it_to_w
     neither = identify_cycle(cycle(G[t], w[t], spread=bad, cycles=4), b,
                              second=cycle(G2, w2, spread=bad, cycles=4))
     assert neither["gains_source"] == "table" and "family" not in neither
+    # a spread one and a half times the limits: the first run's cycle is not steady, the second's is
+    # (SECOND_SPREAD_LIMITS: the larger cycle's point is the more accurate at the same spread)
+    wide = (0.0, math.radians(1.5 * FAMILY_SPREAD_LIMITS[1]))
+    second_wide = identify_cycle(cycle(G[t], w[t], spread=bad, cycles=4), b,
+                                 second=cycle(G2, w2, spread=wide, cycles=4))
+    assert second_wide["gains_source"] == "family" and second_wide["family"]["point"] == "second"
+    first_wide = identify_cycle(cycle(G[t], w[t], spread=wide, cycles=4), b, second=cycle(G2, w2, spread=bad,
+                                                                                       cycles=4))
+    assert first_wide["gains_source"] == "table"
 
 
 def test_a_lateral_session_whose_network_run_is_refused_is_answered_from_its_second_run(tmp_path, monkeypatch):

@@ -56,7 +56,9 @@ from uavsim.ident.consistent import consistent_activations
 from uavsim.ident.cycle import extract_cycle
 from uavsim.ident.family import (
     FAMILY_OTHER_CHI2,
+    FAMILY_SPREAD_LIMITS,
     FAMILY_UNSTEADY_CHI2,
+    SECOND_SPREAD_LIMITS,
     default_family,
     family_applies,
     family_gains,
@@ -213,7 +215,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     # the family of the first steady point (the network's run's, else the second run's), kept to the members
     # the other point allows: more of them where that one is not steady (its error is not its spread's)
     fam_on = default_family(bundle.loop, family) and ans["gains_source"] == "table"
-    steady = [fam_on and x is not None and family_applies(x.response_spread, x.response_cycles) for x in (f, second)]
+    steady = [fam_on and x is not None and family_applies(x.response_spread, x.response_cycles, limits=lim)
+              for x, lim in ((f, FAMILY_SPREAD_LIMITS), (second, SECOND_SPREAD_LIMITS))]
     if any(steady):
         t0 = time.perf_counter()
         (a, o), o_steady = ((f, second), steady[1]) if steady[0] else ((second, f), False)
@@ -247,7 +250,8 @@ def identify_second_point(second: CycleFeatures, bundle: ModelBundle, *, refused
     (``family_applies``). ``refused``: why the network's run was (the answer's ``family.refused``). The answer
     has no ``class`` (None) and no table gains; ``params`` is the family member whose optimum was answered.
     """
-    if not (default_family(bundle.loop, family) and family_applies(second.response_spread, second.response_cycles)):
+    if not (default_family(bundle.loop, family) and family_applies(second.response_spread, second.response_cycles,
+                                                                   limits=SECOND_SPREAD_LIMITS)):
         return None
     t0 = time.perf_counter()
     n = bundle.n_classes
