@@ -44,10 +44,10 @@ import math
 
 import numpy as np
 
-from uavsim.data.preprocess import CycleFeatures, process_response
+from uavsim.data.preprocess import CycleFeatures
 from uavsim.ident.bundle import ModelBundle
-from uavsim.ident.response import measured_phase, unit_response
-from uavsim.ident.twopoint import EXTRAPOLATION_SIGMA, point_uncertainty
+from uavsim.ident.response import unit_response
+from uavsim.ident.twopoint import points_fit
 from uavsim.learning.decision import COST_CLIP
 
 __all__ = ["LAG_GUARD_LOOPS", "LAG_GRID", "LAG_FLAT", "LAG_MEMBERS", "lag_members", "lag_weights",
@@ -67,8 +67,7 @@ def lag_members(bundle: ModelBundle, points: list[CycleFeatures]) -> dict[str, n
     """The lag family of an inner bundle (module docstring), (B,) arrays.
 
     ``points``: the runs' cycles, the network's first (``response``, ``response_period``,
-    ``response_spread``, ``response_cycles``); each point's uncertainty is ``twopoint``'s
-    (``point_uncertainty``, ``EXTRAPOLATION_SIGMA`` on every point after the first).
+    ``response_spread``, ``response_cycles``), fitted as ``twopoint.points_fit`` fits them.
 
     Returns ``T_prop``, ``T1`` (s), ``K``, ``tau`` (s, in the box) fitted to the points and ``chi2``.
     """
@@ -79,20 +78,11 @@ def lag_members(bundle: ModelBundle, points: list[CycleFeatures]) -> dict[str, n
     Tp = np.concatenate([bundle.column("T_prop"), np.repeat(g1, g2.size)])
     T1 = np.concatenate([bundle.column("T1"), np.tile(g2, g1.size)])
     w = np.array([2.0 * math.pi / f.response_period for f in points])
-    G = np.array([complex(process_response(f.response, f.response_period, rate_hz=bundle.input_rate_hz))
-                  for f in points])
-    sg, sp = (np.array(s) for s in zip(*(point_uncertainty(f, EXTRAPOLATION_SIGMA if k else (0.0, 0.0))
-                                         for k, f in enumerate(points)), strict=True))
     mag0, ph0 = unit_response(w[None, :], Tp[:, None], T1[:, None])
-    dg = np.log(np.abs(G))[None, :] - np.log(mag0)
-    wg, wp = 1.0 / sg**2, 1.0 / sp**2
-    logK = (dg * wg).sum(axis=1) / wg.sum()
-    # the measured phase on the branch nearest the box's middle delay: w tau_max is under a radian here
-    d = ph0 - measured_phase(G[None, :], ph0, w[None, :], 0.5 * box["tau"][1])
-    tau = (d * w * wp).sum(axis=1) / (w**2 * wp).sum()
-    chi2 = (((dg - logK[:, None]) ** 2) * wg).sum(axis=1) + (((d - w[None, :] * tau[:, None]) ** 2) * wp).sum(axis=1)
-    ok = np.isfinite(chi2) & (tau >= 0.0) & (tau <= box["tau"][1])
-    return {"T_prop": Tp[ok], "T1": T1[ok], "K": np.exp(logK[ok]), "tau": tau[ok], "chi2": chi2[ok]}
+    # the measured phases on the branch nearest the box's middle delay: w tau_max is under a radian here
+    fit = points_fit(bundle, mag0, ph0, points, tau_branch=0.5 * box["tau"][1], min_tau=None)
+    ok = np.isfinite(fit["chi2"]) & (fit["tau"] >= 0.0) & (fit["tau"] <= box["tau"][1])
+    return {"T_prop": Tp[ok], "T1": T1[ok], "K": fit["K"][ok], "tau": fit["tau"][ok], "chi2": fit["chi2"][ok]}
 
 
 def lag_weights(bundle: ModelBundle, p: np.ndarray, members: dict[str, np.ndarray], *, flat: float = LAG_FLAT

@@ -55,7 +55,7 @@ from uavsim.learning.decision import softmax
 
 __all__ = ["SECOND_BETA", "SECOND_RUN_LOOPS", "SECOND_RUN_AUTO", "SIGMA_FLOOR", "EXTRAPOLATION_SIGMA",
            "TAU_LOG_SIGMA", "TAU_LOG_OFFSET_S", "SECOND_RESPONSE_CYCLES", "second_response_cycles",
-           "auto_second_run", "point_uncertainty", "two_point_fit", "two_point_activations"]
+           "auto_second_run", "point_uncertainty", "two_point_fit", "points_fit", "two_point_activations"]
 
 #: the second run's MRFT parameter a user flies
 SECOND_BETA = -0.3
@@ -127,18 +127,34 @@ def two_point_fit(bundle: ModelBundle, cls, points: list[CycleFeatures]) -> dict
     """
     cls = np.asarray(cls, dtype=np.int64)
     w = np.array([2.0 * math.pi / f.response_period for f in points])
+    mag0, ph0 = class_response(bundle, cls, w)
+    return points_fit(bundle, mag0, ph0, points, tau_branch=bundle.column("tau")[cls][:, None], min_tau=0.0)
+
+
+def points_fit(bundle: ModelBundle, mag0: np.ndarray, ph0: np.ndarray, points: list[CycleFeatures], *,
+               tau_branch, min_tau: float | None = 0.0) -> dict[str, np.ndarray]:
+    """Delay-free unit models' gain and delay fitted to every measured point by weighted least squares.
+
+    ``mag0``, ``ph0``: (n, k) magnitude and unwrapped phase of n models at the k points' frequencies;
+    ``tau_branch``: the delay (s, broadcast to (n, 1)) whose phase picks each measured phase's branch;
+    ``min_tau``: the least delay fitted (None: the unconstrained fit). Each point weighs by its
+    uncertainty (``point_uncertainty``; ``EXTRAPOLATION_SIGMA`` added on every point after the first).
+    Returns (n,) ``K``, ``tau`` (s) and ``chi2``.
+    """
+    w = np.array([2.0 * math.pi / f.response_period for f in points])
     G = np.array([complex(process_response(f.response, f.response_period, rate_hz=bundle.input_rate_hz))
                   for f in points])
     sg, sp = (np.array(s) for s in zip(*(point_uncertainty(f, EXTRAPOLATION_SIGMA if k else (0.0, 0.0))
                                          for k, f in enumerate(points)), strict=True))
-    mag0, ph0 = class_response(bundle, cls, w)
     dg = np.log(np.abs(G))[None, :] - np.log(mag0)
     wg = 1.0 / sg**2
     logK = (dg * wg).sum(axis=1) / wg.sum()
-    # each measured phase on the branch nearest the class's model with its own delay; w tau for an exact fit
-    d = ph0 - measured_phase(G[None, :], ph0, w[None, :], bundle.column("tau")[cls][:, None])
+    # each measured phase on the branch nearest the model's with the branch delay; w tau for an exact fit
+    d = ph0 - measured_phase(G[None, :], ph0, w[None, :], tau_branch)
     wp = 1.0 / sp**2
-    tau = np.maximum((d * w * wp).sum(axis=1) / (w**2 * wp).sum(), 0.0)
+    tau = (d * w * wp).sum(axis=1) / (w**2 * wp).sum()
+    if min_tau is not None:
+        tau = np.maximum(tau, min_tau)
     chi2 = (((dg - logK[:, None]) ** 2) * wg).sum(axis=1) + (((d - w[None, :] * tau[:, None]) ** 2) * wp).sum(axis=1)
     return {"K": np.exp(logK), "tau": tau, "chi2": chi2}
 
