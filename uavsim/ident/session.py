@@ -247,8 +247,9 @@ def identify_second_point(second: CycleFeatures, bundle: ModelBundle, *, refused
 
     The network reads only its own run's cycle, so nothing tells the classes apart: the belief is flat and the
     answer is the family's PD (``uavsim.ident.family``) of the second run's point, where that cycle is steady
-    (``family_applies``). ``refused``: why the network's run was (the answer's ``family.refused``). The answer
-    has no ``class`` (None) and no table gains; ``params`` is the family member whose optimum was answered.
+    (``family_applies`` within ``SECOND_SPREAD_LIMITS``). ``refused``: why the network's run was (the answer's
+    ``family.refused``). The answer has no ``class`` (None) and no table gains; ``params`` is the family member
+    whose optimum was answered.
     """
     if not (default_family(bundle.loop, family) and family_applies(second.response_spread, second.response_cycles,
                                                                    limits=SECOND_SPREAD_LIMITS)):
