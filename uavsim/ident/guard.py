@@ -41,6 +41,9 @@ deg left the median and p95 within 0.003 and the max 1.64 -> 1.45 on seed 13 (7.
 medians 0.004-0.007 over the goal's 1.03). Cost: up to ``GUARD_BELIEFS`` more fitted models closed in
 the same batch as the answer's own (about 1 ms more).
 
+With a second relay run (``answer_guard``'s ``second``) the guard backs off no further than the
+models both measured points allow ask (``uavsim.ident.lagfamily``: the larger of the two factors).
+
     from uavsim.ident.guard import answer_guard, guard_scale
     s = guard_scale(bundle, cls, response, response_period, kp=kp, kd=kd, derivative_filter_hz=fhz)   # (m,)
     g = answer_guard(bundle, p, c, response, period, kp=kp0, kd=kd0, derivative_filter_hz=f0)   # one answer
@@ -176,17 +179,29 @@ def belief_guard_scale(bundle: ModelBundle, p, cls: int, response: complex, resp
 
 
 def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_period: float, *, kp: float,
-                 kd: float, derivative_filter_hz: float, attitude: dict[str, float] | None = None) -> dict:
-    """The guard of one answer (module docstring): the least of its own model's factor and the belief's.
+                 kd: float, derivative_filter_hz: float, attitude: dict[str, float] | None = None,
+                 first=None, second=None, p_network=None) -> dict:
+    """The guard of one answer (module docstring): the least of its own model's factor and the belief's; with a
+    second relay run, on the loops of ``uavsim.ident.lagfamily.LAG_GUARD_LOOPS``, no less than the lag family's.
 
     The answer's class and the belief's (``belief_guard_scale``) are fitted and closed in one
     batch. Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``,
-    ``belief_scale``, ``belief_classes``, ``belief_phase_deg``.
+    ``belief_scale``, ``belief_classes``, ``belief_phase_deg``; with the lag family, ``scale_one_point``
+    (the factor without it) and ``lag_family`` (``lag_family_scale``'s answer). ``first``, ``second``: the
+    two runs' cycles; ``p_network``: the network's belief before any weighing by the points (the lag family
+    weighs its members by the points itself).
     """
     top = _belief_classes(bundle, p, cls, GUARD_BELIEFS, GUARD_BELIEF_MIN)
     bp = GUARD_BELIEF_PHASE_DEG.get(bundle.loop)
     s = _scales_on(bundle, [int(cls), *top], [GUARD_PHASE_DEG] + [bp] * len(top), response, response_period,
                    kp=kp, kd=kd, derivative_filter_hz=derivative_filter_hz, attitude=attitude)
     own, bel = float(s[0]), (float(s[1:].min()) if top else 1.0)
-    return {"scale": min(own, bel), "phase_deg": GUARD_PHASE_DEG, "own_scale": own, "belief_scale": bel,
-            "belief_classes": top, "belief_phase_deg": bp}
+    out = {"scale": min(own, bel), "phase_deg": GUARD_PHASE_DEG, "own_scale": own, "belief_scale": bel,
+           "belief_classes": top, "belief_phase_deg": bp}
+    from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
+
+    if second is not None and bundle.loop in LAG_GUARD_LOOPS:  # no further back than the lag family asks
+        lag = lag_family_scale(bundle, p if p_network is None else p_network, first, second, kp=kp, kd=kd,
+                               derivative_filter_hz=derivative_filter_hz)
+        out.update({"scale_one_point": out["scale"], "scale": max(out["scale"], lag["scale"]), "lag_family": lag})
+    return out

@@ -72,7 +72,6 @@ from uavsim.ident.gains import (
     table_gains,
 )
 from uavsim.ident.guard import answer_guard, default_guard
-from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
 from uavsim.learning.decision import softmax
@@ -132,8 +131,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     second : CycleFeatures or None
         A second relay run's cycle at another ``beta`` (``uavsim.ident.twopoint``): the belief is
         weighed by how well each class fits both measured points before the decision; on the loops
-        of ``LAG_GUARD_LOOPS`` the guard backs off no further than the lag family of both points
-        asks (``uavsim.ident.lagfamily``; the guard's ``scale_one_point`` and ``lag_family``).
+        of ``uavsim.ident.lagfamily.LAG_GUARD_LOOPS`` the guard backs off no further than the lag family
+        of both points asks (``answer_guard``; the guard's ``scale_one_point`` and ``lag_family``).
     family : bool or None
         Lateral only: on a steady cycle (``uavsim.ident.family.family_applies``) answer the PD
         chosen over the family of models the measured point allows (``family_gains``; the
@@ -191,13 +190,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         t0 = time.perf_counter()
         gd = answer_guard(bundle, dec.p[0], c, f.response, f.response_period, kp=float(g_tab["kp"][0]),
                           kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
-                          attitude=attitude)
-        if second is not None and bundle.loop in LAG_GUARD_LOOPS:  # no further back than the lag family asks
-            lag = lag_family_scale(bundle, softmax(act_net, bundle.temperature)[0], f, second,
-                                   kp=float(g_tab["kp"][0]), kd=float(g_tab["kd"][0]),
-                                   derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]))
-            gd = {**gd, "scale_one_point": gd["scale"], "scale": max(gd["scale"], lag["scale"]),
-                  "lag_family": lag}
+                          attitude=attitude, first=f, second=second,
+                          p_network=softmax(act_net, bundle.temperature)[0])
         s = gd["scale"]
         ans["guard"] = {**gd, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
