@@ -46,7 +46,7 @@ def test_the_family_keeps_the_true_class_table_pd_and_backs_an_aggressive_one_of
         p = np.full(g.n, 0.2 / (g.n - 1))
         p[c] = 0.8
         t = table_gains(b, [c], [truth["K"][j]])
-        kw = {"derivative_filter_hz": float(t["derivative_filter_hz"][0])}
+        kw = {"derivative_filter_hz": float(t["derivative_filter_hz"][0]), "scales": GUARD_SCALES}
         kept = lag_family_scale(b, p, first[j], second[j], kp=float(t["kp"][0]), kd=float(t["kd"][0]), **kw)
         assert kept["scale"] >= 0.94  # the optimum of the true lags, robust to a class's miss
         assert 0 < kept["members"] <= 20 and np.isfinite(kept["expected_log_ratio"])

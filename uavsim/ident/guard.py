@@ -55,6 +55,7 @@ from __future__ import annotations
 import numpy as np
 
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 
 __all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "GUARD_BELIEFS", "GUARD_BELIEF_MIN",
            "GUARD_BELIEF_PHASE_DEG", "default_guard", "guard_scale", "belief_guard_scale", "answer_guard"]
@@ -198,10 +199,8 @@ def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_p
     own, bel = float(s[0]), (float(s[1:].min()) if top else 1.0)
     out = {"scale": min(own, bel), "phase_deg": GUARD_PHASE_DEG, "own_scale": own, "belief_scale": bel,
            "belief_classes": top, "belief_phase_deg": bp}
-    from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
-
     if second is not None and bundle.loop in LAG_GUARD_LOOPS:  # no further back than the lag family asks
         lag = lag_family_scale(bundle, p if p_network is None else p_network, first, second, kp=kp, kd=kd,
-                               derivative_filter_hz=derivative_filter_hz)
+                               derivative_filter_hz=derivative_filter_hz, scales=GUARD_SCALES)
         out.update({"scale_one_point": out["scale"], "scale": max(out["scale"], lag["scale"]), "lag_family": lag})
     return out

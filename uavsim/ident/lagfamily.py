@@ -11,7 +11,7 @@ the box: no process the grid covers). A member weighs ``exp(-chi2 / 2)`` times t
 belief at its nearest class (``1 - LAG_FLAT`` of it, the rest spread flat).
 
 **The guard's factor** (``lag_family_scale``): the answer's PD times each of the guard's factors
-(``uavsim.ident.guard.GUARD_SCALES``) is closed on the ``LAG_MEMBERS`` heaviest members (exact
+(``uavsim.ident.guard.GUARD_SCALES``, passed in) is closed on the ``LAG_MEMBERS`` heaviest members (exact
 sampled ISE at the table's rate), and the factor of least weighted ``log(ISE / best ISE)`` (best:
 the least over the factors on that member, clipped like ``J``) is the family's. The belief guard
 (``uavsim.ident.guard.answer_guard``) closes the answer on the belief's classes fitted to the first
@@ -33,8 +33,9 @@ decision (both: a lower noise-free tail, a higher noisy one), its points' uncert
 and ``LAG_MEMBERS x len(GUARD_SCALES)`` closed loops, about 6 ms on one thread (``uavsim bench
 infer``'s ``identification_two_points`` 7.0 -> 13.3 ms median, altitude), off the table's real-time path.
 
+    from uavsim.ident.guard import GUARD_SCALES
     from uavsim.ident.lagfamily import lag_family_scale
-    g = lag_family_scale(bundle, p, f, f2, kp=kp, kd=kd, derivative_filter_hz=fhz)   # p: the network's belief
+    g = lag_family_scale(bundle, p, f, f2, kp=kp, kd=kd, derivative_filter_hz=fhz, scales=GUARD_SCALES)
     g["scale"], g["members"]
 """
 
@@ -103,7 +104,7 @@ def lag_weights(bundle: ModelBundle, p: np.ndarray, members: dict[str, np.ndarra
 
 
 def lag_family_scale(bundle: ModelBundle, p: np.ndarray, first: CycleFeatures, second: CycleFeatures, *,
-                     kp: float, kd: float, derivative_filter_hz: float, scales=None, flat: float = LAG_FLAT,
+                     kp: float, kd: float, derivative_filter_hz: float, scales, flat: float = LAG_FLAT,
                      members: int = LAG_MEMBERS) -> dict:
     """The lag family's factor of one PD (module docstring).
 
@@ -115,8 +116,8 @@ def lag_family_scale(bundle: ModelBundle, p: np.ndarray, first: CycleFeatures, s
         The network's run's cycle and the second run's.
     kp, kd, derivative_filter_hz : float
         The answer's PD (filter in Hz).
-    scales : sequence of float or None
-        Factors tried (None: ``GUARD_SCALES``).
+    scales : sequence of float
+        Factors tried (the guard's: ``uavsim.ident.guard.GUARD_SCALES``).
     flat, members
         ``LAG_FLAT``, ``LAG_MEMBERS``.
 
@@ -126,10 +127,9 @@ def lag_family_scale(bundle: ModelBundle, p: np.ndarray, first: CycleFeatures, s
     (closed on) and ``expected_log_ratio`` (of the factor, where one was chosen).
     """
     from uavsim.ident.gains import model_loop_params
-    from uavsim.ident.guard import GUARD_SCALES
     from uavsim.lumped.sampled import lift, sampled_ise
 
-    sc = np.asarray(GUARD_SCALES if scales is None else scales, dtype=np.float64)
+    sc = np.asarray(scales, dtype=np.float64)
     m = lag_members(bundle, [first, second])
     if m["K"].size == 0:
         return {"scale": 1.0, "members": 0}
