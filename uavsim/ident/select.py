@@ -234,7 +234,9 @@ def _fitted(bundle: ModelBundle, activations, response, response_period, beliefs
         Q = np.where(np.isfinite(Q) & (Q > 0), Q, np.inf).reshape(cand.size, bel.size)
         best = Q.min(axis=0)
         seen = np.isfinite(best)
-        if not seen.any():  # no candidate holds any fitted model: keep the grid's decision
+        if not (seen.any() and p[m, bel][seen].sum() > 0):
+            # no candidate holds any fitted model the belief weighs (all its weight on models none holds,
+            # as a belief sure of one class can put it): keep the grid's decision
             score[m] = ec[m, cls[m]]
             continue
         w = p[m, bel][seen] / p[m, bel][seen].sum()
