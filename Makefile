@@ -7,7 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.uavsim-installed
 OUT    ?= out
-LOOPS  ?= altitude attitude
+LOOPS  ?= altitude attitude altitude-second
 export RERUN_ANALYTICS := 0
 
 .PHONY: demo test test-slow lint bench generate-data train replay clean help
@@ -18,7 +18,7 @@ help:
 	@echo "make test-slow       also the long checks (minutes)"
 	@echo "make bench           benchmarks (ratios against same-run baselines)"
 	@echo "make replay          Rerun recording of the demo episode"
-	@echo "make generate-data   training sets into datasets/ (LOOPS=\"altitude attitude\" or LOOPS=lateral)"
+	@echo "make generate-data   training sets into datasets/ (LOOPS=\"altitude attitude altitude-second\" or LOOPS=lateral)"
 	@echo "make train           networks into training/runs/ from those sets"
 
 $(STAMP): pyproject.toml

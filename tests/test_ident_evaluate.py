@@ -136,6 +136,7 @@ def test_cli_second_run(three_model, tmp_path):  # noqa: F811 (fixture)
     assert out["spec"]["second_beta"] == -0.3 and out["second_run"]["beta"] == -0.3
     answered = out["rows"]["all"]["answer"]["n"] - out["rows"]["all"]["answer"]["refused"]
     assert 1 <= out["second_run"]["two_points"] <= answered
+    assert out["second_run"]["network"] is None and out["second_run"]["network_read"] == 0  # none beside it
     one = subprocess.run(cmd + ["--second-beta", "none"], capture_output=True, text=True, cwd=ROOT, env=env)
     assert one.returncode == 0, one.stderr
     out1 = json.loads(one.stdout)

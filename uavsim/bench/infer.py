@@ -14,7 +14,8 @@ models and the phase-margin guard its answer's, a few ms more, for a lower J:
 docs/results/identification.md); its stages are reported beside them, with
 ``identification_guarded`` (the whole identification with the guard, ``identify --guard``)
 ``identification_two_points`` (the loop's defaults with a second run at ``SECOND_BETA``, its cycle's
-extraction included: what ``uavsim identify`` does on a session that holds one) and the opt-in optimum
+extraction included, and where the model folder has a second network beside it, ``uavsim.ident.secondnet``,
+that network's read of the run: what ``uavsim identify`` does on a session that holds one) and the opt-in optimum
 of the fitted model (``--optimum``, ``fitted_optimum``). Each is timed ``--reps`` times on a 10 s,
 200 Hz NP-MRFT trace of a mid-grid altitude process (exact lumped simulation
 with 5% white noise), with torch on ``--threads`` threads (1: the embedded case).
@@ -114,6 +115,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     from uavsim.ident.bundle import load_bundle
     from uavsim.ident.cycle import extract_cycle
     from uavsim.ident.gains import fitted_model, model_optimum, table_gains
+    from uavsim.ident.secondnet import load_second_bundle, second_reading
     from uavsim.ident.select import DEFAULT_DECISION, choose_class, cycle_activations
     from uavsim.ident.session import identify_arrays, second_cycle
     from uavsim.ident.twopoint import SECOND_BETA
@@ -130,6 +132,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
     with tempfile.TemporaryDirectory() as tmp:
         d, trained = _model_dir(models, Path(tmp))
         b = load_bundle(d)
+        b2 = load_second_bundle(d, b) if trained else None
         pred = b.predictor
         if threads is not None:
             torch.set_num_threads(int(threads))
@@ -170,7 +173,8 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
             identify_arrays(y_slow, u_slow, beta=g.beta, decision=table_decision, guard=False, **kw)
             t7 = time.perf_counter()
             f2 = second_cycle(y2, u2, rate_hz=200.0, h=1.0, bias=0.0, cycles=b.cycles, loop=b.loop)
-            identify_arrays(y, u, beta=g.beta, second=f2, **kw)
+            r2 = None if b2 is None else second_reading(b2, y2, u2, rate_hz=200.0, h=1.0, bias=0.0)
+            identify_arrays(y, u, beta=g.beta, second=f2, second_network=r2, **kw)
             t8 = time.perf_counter()
             t_pre[i], t_net[i], t_all[i], t_base[i], t_grd[i] = t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4
             t_tab[i], t_slow[i], t_two[i] = t6 - t5, t7 - t6, t8 - t7
@@ -188,6 +192,7 @@ def run_bench(models: str | None = None, reps: int = 300, threads: int = 1) -> d
         "identification_table_path_slowest_class": _stats(t_slow),
         "default_decision": DEFAULT_DECISION.get("altitude", b.decision),
         "identification_guarded": _stats(t_grd), "identification_two_points": _stats(t_two),
+        "second_network": None if b2 is None else str(b2.dir),
         "fitted_optimum": _stats(t_opt),
         "baseline_numpy_forward": _stats(t_base) if W is not None else None, "goal_ms": GOAL_MS,
         "blas_threads_env": {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
@@ -272,4 +277,6 @@ def _run(args: argparse.Namespace) -> int:
           f"table path / numpy forward = {out.get('ratio_table_path_to_baseline', float('nan')):.2f}; "
           f"goal (identification_table_path) <= {GOAL_MS} ms: {'met' if out['meets_goal'] else 'MISSED'}; "
           f"the default decision ({out['default_decision']}) takes {out['identification']['median_ms']:.2f} ms")
+    if out.get("second_network"):
+        print(f"identification_two_points includes the second run's network {out['second_network']}")
     return 0

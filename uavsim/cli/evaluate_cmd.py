@@ -62,6 +62,9 @@ def register(subparsers) -> None:
                         "by how each class fits both measured points (uavsim.ident.twopoint; lateral: the family of "
                         "models too, uavsim.ident.family); default auto: -0.3 on every loop; none: one run (the "
                         "paper's method)")
+    p.add_argument("--no-second-network", dest="second_network", action="store_false",
+                   help="with a second run, weigh by its point alone, not also by the network of its beta that the "
+                        "model root holds (uavsim.ident.secondnet: altitude-second)")
     p.add_argument("--bias-trim", choices=["off", "duty"], default=None,
                    help="the relay trims its bias from each cycle's duty (duty) or keeps it (off); default: the "
                         "network's dataset recipe's [test] bias_trim")
@@ -109,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     spec = EvalSpec(loop=args.loop, n=args.n, seed=args.seed, K=tuple(args.K), chunk=args.chunk, att_classes=att,
                     optimum=args.optimum, decision=args.decision, guard=args.guard, inputs=args.inputs,
                     combine=args.combine, second_beta=second_beta, bias_trim=args.bias_trim,
-                    family=args.family, cycles=args.cycles)
+                    family=args.family, cycles=args.cycles, second_network=args.second_network)
     res = evaluate(spec, models=args.models or default_model_root(), recipe=recipe)
     md = markdown(res)
     if args.markdown:

@@ -63,6 +63,9 @@ def register(subparsers) -> None:
                         "default auto: the session's run at beta -0.3 where it holds one (lateral: it also keeps "
                         "the family of models to those both points allow, and answers alone where the first run "
                         "is refused); none: the first run alone")
+    p.add_argument("--no-second-network", dest="second_network", action="store_false",
+                   help="with a second run, weigh by its point alone, not also by the network of its beta beside "
+                        "the model folder (uavsim.ident.secondnet: altitude-second, where make train made one)")
     p.add_argument("--write-model", action="store_true", help="write the identified [model] into the session")
     p.add_argument("--force", action="store_true", help="with --write-model: replace an existing [model]")
     p.add_argument("--plot", metavar="PNG", help="write a picture: the measured cycle against the identified "
@@ -76,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
 
     ans = identify_session(args.session, models=args.models, run=args.run, attitude_class=args.attitude_class,
                            optimum=args.optimum, decision=args.decision, guard=args.guard,
-                           second_run=None if args.second_run == "none" else args.second_run, family=args.family)
+                           second_run=None if args.second_run == "none" else args.second_run, family=args.family,
+                           second_network=args.second_network)
     if args.write_model:
         folder = write_model(args.session, ans, overwrite=args.force)
         ans["written"] = str(folder)
@@ -97,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
     elif sr is not None:
         eprint(f"second run {sr['run']} (beta {sr['beta']:g}) " + (f"not used: {sr['skipped']}" if "skipped" in sr
                                                                   else "weighs the belief"))
+        sn = ans.get("second_network")
+        if sn is not None:
+            eprint(f"and its network {sn['model_dir']} read it" + (
+                f" (the first run's point unsteady: the first network's belief to the power {sn['first_weight']:g})"
+                if sn["first_weight"] != 1.0 else ""))
     row = {"loop": ans["loop"], "class": ans["class"], **ans["params"], **ans["gains"],
            "gains_source": ans["gains_source"], "period_s": ans["oscillation"]["period"],
            "amplitude": ans["oscillation"]["amplitude"]}

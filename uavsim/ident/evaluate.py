@@ -96,6 +96,7 @@ from uavsim.ident.cycle import extract_cycle, phase_lead, response_cycles
 from uavsim.ident.family import default_family
 from uavsim.ident.gains import fitted_model, gain_estimate, model_optimum, table_gains
 from uavsim.ident.guard import answer_guard
+from uavsim.ident.secondnet import load_second_bundle, second_reading
 from uavsim.ident.select import cycle_activations, decide_blend, decide_fitted
 from uavsim.ident.session import identify_cycle, identify_second_point, second_cycle
 from uavsim.ident.twopoint import SECOND_BETA, SECOND_RUN_AUTO, SECOND_RUN_LOOPS
@@ -158,6 +159,9 @@ class EvalSpec:
         else the recipe's ``[episodes] cycles`` (the training sets' length). The run's length is a
         user's choice: its point's standard error falls with the root of the steady cycles it
         averages (``uavsim.ident.cycle.response_cycles``)
+    second_network : with a second run, the network of its ``beta`` beside the model folder reads it where
+        the model root holds one (``uavsim.ident.secondnet``: ``altitude-second``), as identification of a
+        session does; False: the point alone
     """
 
     loop: str = "altitude"
@@ -176,6 +180,7 @@ class EvalSpec:
     bias_trim: str | None = None
     family: bool | None = None
     cycles: int | None = None
+    second_network: bool = True
 
 
 def second_beta_for(loop: str, second_beta: float | str | None) -> float | None:
@@ -331,11 +336,13 @@ def _goal_check(row: dict[str, Any], lateral: bool) -> dict[str, bool]:
 
 def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str, decision: str | None,
                   guard: bool | None = None, inputs: str | None = None, combine: str | None = None,
-                  sim2: dict[str, Any] | None = None, family: bool | None = None) -> dict[str, Any]:
+                  sim2: dict[str, Any] | None = None, family: bool | None = None,
+                  bundle2: ModelBundle | None = None) -> dict[str, Any]:
     """Identify every episode as a session; the cycles' responses for the controls (also of refused ones).
 
     ``sim2``: a second run of every episode at another ``beta``; where it holds a cycle, it weighs the
     belief (``identify_cycle``'s ``second``), else the episode is identified from its first run alone.
+    ``bundle2``: that run's network (``uavsim.ident.secondnet``), which reads it where it holds a cycle.
     """
     from uavsim.data.preprocess import features
 
@@ -343,7 +350,8 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
     rate, h = recipe.episodes.rate_hz, recipe.test.h
     res = {"answers": [None] * n, "why": [None] * n, "response": np.full(n, complex("nan")),
            "response_period": np.full(n, np.nan), "ms": np.full(n, np.nan), "lead": np.full(n, np.nan),
-           "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan), "second": np.zeros(n, bool)}
+           "top": [None] * n, "act": np.full((n, bundle.n_classes), np.nan), "second": np.zeros(n, bool),
+           "second_network": np.zeros(n, bool)}
     for i in range(n):
         kw = {"rate_hz": rate, "h": h, "bias": float(sim["bias"][i])}
         y, u = _run(sim, i)
@@ -355,11 +363,15 @@ def _identify_all(bundle: ModelBundle, sim: dict[str, Any], recipe, optimum: str
                                   cycles=bundle.cycles, loop=bundle.loop)
             except NoOscillation:
                 f2 = None
+        reading = None
+        if f2 is not None and bundle2 is not None:
+            reading = second_reading(bundle2, *_run(sim2, i), rate_hz=rate, h=h, bias=float(sim2["bias"][i]))
         try:
             f = extract_cycle(y, u, bundle=bundle, inputs=inputs, **kw)
             res["second"][i] = f2 is not None
             res["answers"][i] = identify_cycle(f, bundle, optimum=optimum, decision=decision, guard=guard,
-                                               combine=combine, second=f2, family=family)
+                                               combine=combine, second=f2, family=family, second_network=reading)
+            res["second_network"][i] = reading is not None
             res["ms"][i] = 1e3 * (time.perf_counter() - t0)
         except NoOscillation as exc:
             a2 = None if f2 is None else identify_second_point(f2, bundle, refused=str(exc), family=family)
@@ -569,15 +581,19 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
+        b2 = load_second_bundle(d, b) if sim2 is not None and spec.second_network else None
+        if b2 is not None and abs(b2.rule.beta - beta2) > 1e-6:
+            b2 = None  # a network of another beta than the run flown
         ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2,
-                            spec.family)
+                            spec.family, b2)
         refused = np.array([x is None for x in ids["answers"]])
         no_class = np.array([x is not None and x["class"] is None for x in ids["answers"]])
         J = _variants(b, truth, opt.ise, ids, rule)
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "no_class": no_class,
                     "level": level, "kind": kind,
                     "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "response": ids["response"],
-                    "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"], "truth": truth, "sim": sim, "answers": ids["answers"]})
+                    "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"], "second_network": ids["second_network"],
+                    "second_model_dir": None if b2 is None else str(b2.dir), "truth": truth, "sim": sim, "answers": ids["answers"]})
         log(f"{'attitude class ' + str(a) + ': ' if a is not None else ''}identified {int((~refused).sum())}/"
             f"{spec.n} ({time.perf_counter() - t0:.0f} s)")
     cat = lambda k: np.concatenate([p[k] for p in per])  # noqa: E731
@@ -595,7 +611,9 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
             ms).any() else {},
         "episodes": _episodes(per),
         **({"second_run": {"beta": beta2, "two_points": int(cat("second").sum()),
-                           "answered_from_it_alone": int(cat("no_class").sum())}} if beta2 is not None else {}),
+                           "answered_from_it_alone": int(cat("no_class").sum()),
+                           "network": per[0]["second_model_dir"],
+                           "network_read": int(cat("second_network").sum())}} if beta2 is not None else {}),
         "wall_s": time.perf_counter() - t0,
     }
     if lateral:

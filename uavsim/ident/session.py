@@ -72,6 +72,14 @@ from uavsim.ident.gains import (
     table_gains,
 )
 from uavsim.ident.guard import answer_guard, default_guard
+from uavsim.ident.secondnet import (
+    SecondReading,
+    first_weight,
+    load_second_bundle,
+    multiply_beliefs,
+    second_reading,
+    unsteady_spread,
+)
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
 from uavsim.learning.decision import softmax
@@ -101,7 +109,7 @@ def _floats(g: dict[str, np.ndarray], keys=_GAIN_KEYS) -> dict[str, float]:
 def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "never",
                    attitude: dict[str, float] | None = None, decision: str | None = None,
                    guard: bool | None = None, combine: str | None = None, second: CycleFeatures | None = None,
-                   family: bool | None = None) -> dict[str, Any]:
+                   family: bool | None = None, second_network: SecondReading | None = None) -> dict[str, Any]:
     """Identify from an extracted cycle (``extract_cycle``); see the module docstring.
 
     Parameters
@@ -139,6 +147,10 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
         answer's ``family``: the member, its factor, ``latency_ms``) instead of the table's,
         unless a fitted optimum is answered. None: the loop's default (``uavsim.ident.family.DEFAULT_FAMILY``:
         on for lateral loops).
+    second_network : SecondReading or None
+        With ``second``: the second run's network's look at that run (``uavsim.ident.secondnet``): its
+        belief multiplies the first's, which is tempered where the first point is unsteady (the answer's
+        ``second_network``).
 
     Returns
     -------
@@ -153,12 +165,15 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     guard = default_guard(bundle.loop, guard)
-    act, n_out = consistent_activations(bundle, cycle_activations(bundle, f, combine=combine), f)
+    w_first = 1.0 if second is None or second_network is None else first_weight(f, second)
+    act, n_out = consistent_activations(bundle, w_first * cycle_activations(bundle, f, combine=combine), f)
     act_net = act  # the network's own belief (the lag family weighs its members by the points itself)
     if second is not None:  # the belief weighed by how each class fits both measured points
         from uavsim.ident.twopoint import two_point_activations
 
         act = two_point_activations(bundle, act, f, second)
+        if second_network is not None:
+            act = multiply_beliefs(act, bundle.temperature, second_network)
     dec = decide_class(bundle, act, decision=decision, response=np.array([f.response]),
                        response_period=np.array([f.response_period]), response_spread=np.array([f.response_spread]))
     c = int(dec.cls[0])
@@ -229,6 +244,11 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                        float(dec.expected_J[0]), "class_argmax": int(dec.p[0].argmax()), "softmax": float(dec.p[0, c]),
                        "scale": dec_scale, "ruled_out": n_out}
     ans["softmax_top"] = float(dec.p[0, c])
+    if second is not None and second_network is not None:
+        p2 = second_network.belief()[0]
+        ans["second_network"] = {"model_dir": second_network.model_dir, "beta": second_network.beta,
+                                 "class_argmax": int(p2.argmax()), "softmax": float(p2[c]),
+                                 "first_weight": w_first, "first_unsteady": unsteady_spread(f)}
     ans["oscillation"] = {"period": f.period, "amplitude": f.amplitude, "n_cycles": f.n_cycles, "start": f.start,
                           "stop": f.stop, "inputs": f.inputs, "input_cycles": f.input_cycles}
     ans["response"] = _point(f)
@@ -272,17 +292,17 @@ def identify_arrays(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, b
                     beta: float | None = None, optimum: str = "never",
                     attitude: dict[str, float] | None = None, decision: str | None = None,
                     guard: bool | None = None, second: CycleFeatures | None = None,
-                    family: bool | None = None) -> dict[str, Any]:
+                    family: bool | None = None, second_network: SecondReading | None = None) -> dict[str, Any]:
     """Identify from raw traces at the control rate: ``extract_cycle`` then ``identify_cycle``.
 
     ``y``, ``u``: (T,) measurement and relay command as the controller saw / computed them;
     ``h``, ``bias``: the relay's; ``beta``: the run's MRFT parameter (checked against the network's);
-    ``second``: a second run's cycle (``second_cycle``), as ``identify_cycle`` takes it; ``family``:
-    ``identify_cycle``'s.
+    ``second``: a second run's cycle (``second_cycle``), and ``second_network``: its network's look at
+    it, as ``identify_cycle`` takes them; ``family``: ``identify_cycle``'s.
     """
     f = extract_cycle(y, u, rate_hz=rate_hz, h=h, bias=bias, bundle=bundle, beta=beta)
     return identify_cycle(f, bundle, optimum=optimum, attitude=attitude, decision=decision, guard=guard,
-                          second=second, family=family)
+                          second=second, family=family, second_network=second_network)
 
 
 def second_cycle(y: np.ndarray, u: np.ndarray, *, rate_hz: float, h: float, bias: float,
@@ -303,7 +323,7 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
                      attitude_class: int | None = None, attitude: dict[str, float] | None = None,
                      optimum: str = "never", decision: str | None = None, guard: bool | None = None,
                      second_run: str | None = SECOND_RUN_AUTO, family: bool | None = None,
-                     duty_check: bool = True) -> dict[str, Any]:
+                     duty_check: bool = True, second_network: bool = True) -> dict[str, Any]:
     """Identify the loop of a session from its relay run (module docstring).
 
     Parameters
@@ -333,6 +353,9 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
         Refuse a cycle whose duty a network trained on bias-trimmed relays never saw
         (``uavsim.ident.cycle.duty_refusal``). The gap workflow turns it off for a base model
         when every relay run is refused so: the bias is one of the effects it looks for.
+    second_network : bool
+        With a second run, let the network of that run's ``beta`` beside the model folder
+        (``uavsim.ident.secondnet``: ``altitude-second``) read it, where the root holds one.
 
     Returns
     -------
@@ -384,12 +407,20 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
             if not auto:
                 raise UserError(f"session {path}: second run {second_run}: {exc}") from None
             skipped = str(exc)  # a run found, not asked for: one point, and the answer says why
+    reading = None
+    if second is not None and second_network:
+        b_second = load_second_bundle(d, b)
+        if b_second is not None and abs(float(r2.spec.beta) - b_second.rule.beta) < 1e-6:
+            if not duty_check:
+                b_second = replace(b_second, bias_trim="off")
+            reading = second_reading(b_second, r2.data.y, relay_command(r2.data.u, h2, b2, r2.spec.bias_trim),
+                                     rate_hz=s.control_rate_hz, h=h2, bias=b2)
     h, bias = float(r.spec.h), float(r.spec.bias or 0.0)
     try:
         ans = identify_arrays(r.data.y, relay_command(r.data.u, h, bias, r.spec.bias_trim),
                               rate_hz=s.control_rate_hz, h=h, bias=bias, bundle=b, beta=r.spec.beta,
                               optimum=optimum, attitude=attitude, decision=decision, guard=guard, second=second,
-                              family=family)
+                              family=family, second_network=reading)
         ans["run"] = r.spec.file
     except NoOscillation as exc:  # a lateral loop may still answer from a steady second run
         ans = None if second is None else identify_second_point(second, b, refused=f"{r.spec.file}: {exc}",

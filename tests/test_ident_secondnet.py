@@ -1,0 +1,157 @@
+"""The second run's network (``uavsim.ident.secondnet``): found beside the first, checked, read, multiplied in.
+
+The networks are the tiny three-class altitude network of ``_learning_fixtures`` and a copy of it
+exported as if trained at beta -0.3, its last layer biased to one class: a second network that is
+sure of a class the first is not. The session is a MuJoCo NP-MRFT pair of runs (beta -0.73 and -0.3)
+of one class, as ``test_identify`` flies them.
+"""
+
+import json
+import shutil
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from _learning_fixtures import CLASSES, three_model  # noqa: F401 (fixture)
+
+from uavsim.errors import UserError
+from uavsim.formats.session import write_session
+from uavsim.ident.bundle import load_bundle
+from uavsim.ident.secondnet import (
+    SECOND_NET_SUFFIX,
+    UNSTEADY_SPREAD,
+    UNSTEADY_TEMPER,
+    SecondReading,
+    first_weight,
+    load_second_bundle,
+    multiply_beliefs,
+    second_model_dir,
+    unsteady_spread,
+)
+from uavsim.ident.session import identify_session
+from uavsim.learning.decision import softmax
+
+TRUE, K_TRUE, H = 1, 3.0, 0.5
+
+
+def _second_copy(model, dst, *, beta=-0.3, favour=None, period_factor=3.0, shift_tau=False):
+    """``model`` exported again into ``dst`` as a network of relay runs at ``beta``: its classes' cycle periods
+    times ``period_factor`` (a slower relay), its last bias raised on class ``favour``."""
+    shutil.copytree(model, dst)
+    meta = json.loads((dst / "meta.json").read_text())
+    meta["beta"] = beta
+    meta["identification"]["rule"]["beta"] = beta
+    for k in ("period", "period_sim"):
+        if k in meta["classes"]:
+            meta["classes"][k] = [None if v is None else v * period_factor for v in meta["classes"][k]]
+    if shift_tau:
+        meta["classes"]["tau"] = [v * 1.5 for v in meta["classes"]["tau"]]
+    (dst / "meta.json").write_text(json.dumps(meta))
+    if favour is not None:
+        w = dict(np.load(dst / "weights.npz"))
+        last = f"b{int(w['n_layers']) - 1}"
+        w[last] = w[last].copy()
+        w[last][favour] += 1e4
+        np.savez(dst / "weights.npz", **w)
+    return dst
+
+
+@pytest.fixture(scope="module")
+def two_runs(three_model, tmp_path_factory):  # noqa: F811 (fixture from _learning_fixtures)
+    from uavsim.control.relay import NPMRFT
+    from uavsim.ident.twopoint import SECOND_BETA
+    from uavsim.sim.runner import LoopBatch
+    from uavsim.sim.sessions import relay_session
+
+    tmp, model, grid = three_model
+    out = tmp_path_factory.mktemp("secondnet")
+    p = replace(grid.params_of(CLASSES[TRUE]), K=K_TRUE)
+    runs = []
+    for beta, seconds, seed, file in ((grid.beta, 8.0, 5, "relay.csv"), (SECOND_BETA, 12.0, 6, "relay_b030.csv")):
+        res = LoopBatch([p], dt=0.0005, rate_hz=200.0, seed=seed).run(
+            NPMRFT(beta, H, 0.01, 0.0, 200.0, 1, bias=0.1), duration_s=seconds)
+        runs.append(relay_session(res, 0, p, beta=beta, h=H, rate_hz=200.0, tau_obs=0.01, a_n=0.0, bias=0.1,
+                                  with_model=False, file=file))
+    s = replace(runs[0], runs=[runs[0].runs[0], runs[1].runs[0]])
+    session = write_session(s, out / "session")
+    root = out / "root"
+    root.mkdir()
+    shutil.copytree(model, root / "altitude")
+    wrong = 0 if TRUE != 0 else 2
+    _second_copy(model, root / f"altitude{SECOND_NET_SUFFIX}", favour=wrong)
+    return {"session": session, "root": root, "wrong": wrong, "model": model, "out": out}
+
+
+def test_the_second_network_is_found_beside_the_first_and_read(two_runs):
+    """The root's ``altitude-second`` reads the second run; its belief multiplies the first's (here it is
+    sure of a wrong class, so the answer moves there); ``second_network=False`` and a root without it
+    answer as before, and the answer says which network read the run."""
+    root = two_runs["root"]
+    assert second_model_dir(root / "altitude") == root / f"altitude{SECOND_NET_SUFFIX}"
+    assert second_model_dir(two_runs["model"]) is None
+    with_net = identify_session(two_runs["session"], models=root)
+    without = identify_session(two_runs["session"], models=root, second_network=False)
+    alone = identify_session(two_runs["session"], models=two_runs["model"])
+    assert "second_network" not in without and "second_network" not in alone
+    assert without["class"] == alone["class"] == TRUE and without["gains"] == alone["gains"]
+    sn = with_net["second_network"]
+    assert sn["model_dir"].endswith(f"altitude{SECOND_NET_SUFFIX}") and sn["beta"] == pytest.approx(-0.3)
+    assert sn["class_argmax"] == two_runs["wrong"] and with_net["class"] == two_runs["wrong"]
+    # a clean first run is steady: its network's belief is not tempered
+    assert sn["first_weight"] == 1.0 and sn["first_unsteady"] < UNSTEADY_SPREAD
+    # one run (no second point): the second network has nothing to read
+    one = identify_session(two_runs["session"], models=root, second_run=None)
+    assert "second_network" not in one and one["class"] == TRUE
+
+
+def test_a_second_network_of_another_grid_or_the_same_beta_is_refused(two_runs):
+    first = load_bundle(two_runs["model"])
+    other = _second_copy(two_runs["model"], two_runs["out"] / "grid" / "altitude-second", shift_tau=True)
+    shutil.copytree(two_runs["model"], two_runs["out"] / "grid" / "altitude")
+    with pytest.raises(UserError, match="not those of"):
+        load_second_bundle(two_runs["out"] / "grid" / "altitude", first)
+    assert other.is_dir()
+    _second_copy(two_runs["model"], two_runs["out"] / "same" / "altitude-second", beta=first.rule.beta)
+    shutil.copytree(two_runs["model"], two_runs["out"] / "same" / "altitude")
+    with pytest.raises(UserError, match="first network's beta"):
+        load_second_bundle(two_runs["out"] / "same" / "altitude", first)
+    with pytest.raises(UserError, match="first network's beta"):
+        identify_session(two_runs["session"], models=two_runs["out"] / "same")
+
+
+def test_beliefs_multiply_and_an_unsteady_first_point_is_tempered():
+    rng = np.random.default_rng(3)
+    a1, a2 = rng.normal(size=(1, 5)) * 3, rng.normal(size=(1, 5)) * 2
+    r = SecondReading(activations=a2, temperature=0.7, model_dir="x", beta=-0.3)
+    out = multiply_beliefs(a1, 1.5, r)
+    want = softmax(a1, 1.5) * softmax(a2, 0.7)
+    assert np.allclose(softmax(out, 1.5), want / want.sum())
+    # spreads in units of the family's limits, scaled to its four reference cycles
+    steady = SimpleNamespace(response_spread=(0.01, np.radians(0.2)), response_cycles=4)
+    loose = SimpleNamespace(response_spread=(0.9, np.radians(3.0)), response_cycles=4)
+    phase = SimpleNamespace(response_spread=(0.01, np.radians(13.0)), response_cycles=4)
+    assert unsteady_spread(steady) == pytest.approx(0.2 / 1.5)
+    assert unsteady_spread(loose) == pytest.approx(9.0)
+    assert first_weight(steady, steady) == 1.0
+    assert first_weight(loose, steady) == first_weight(phase, steady) == UNSTEADY_TEMPER
+    # the second run's cycle not steady either: nothing to prefer, no tempering
+    assert first_weight(loose, loose) == 1.0
+
+
+def test_evaluate_reads_the_second_run_with_its_network(two_runs):
+    """``uavsim evaluate`` lets the second network read each process's second run as identification of a
+    session does, and says so; ``second_network=False`` (``--no-second-network``) the point alone."""
+    from pathlib import Path
+
+    import uavsim.ident.evaluate as ev
+
+    recipe = Path(__file__).resolve().parents[1] / "datasets" / "small.toml"
+    spec = ev.EvalSpec(loop="altitude", n=3, seed=4)
+    on = ev.evaluate(spec, models=two_runs["root"], recipe=recipe, log=lambda m: None)
+    off = ev.evaluate(replace(spec, second_network=False), models=two_runs["root"], recipe=recipe,
+                      log=lambda m: None)
+    sr = on["second_run"]
+    assert sr["network"].endswith(f"altitude{SECOND_NET_SUFFIX}") and 1 <= sr["network_read"] <= sr["two_points"]
+    assert off["second_run"]["network"] is None and off["second_run"]["network_read"] == 0
+    assert off["second_run"]["two_points"] == sr["two_points"]
