@@ -107,6 +107,9 @@ def test_the_second_network_is_found_beside_the_first_and_read(two_runs):
 
 def test_a_second_network_of_another_grid_or_the_same_beta_is_refused(two_runs):
     first = load_bundle(two_runs["model"])
+    # a second run at another beta than the second network's: that network is not asked
+    assert load_second_bundle(two_runs["root"] / "altitude", first, beta=-0.3) is not None
+    assert load_second_bundle(two_runs["root"] / "altitude", first, beta=-0.5) is None
     other = _second_copy(two_runs["model"], two_runs["out"] / "grid" / "altitude-second", shift_tau=True)
     shutil.copytree(two_runs["model"], two_runs["out"] / "grid" / "altitude")
     with pytest.raises(UserError, match="not those of"):

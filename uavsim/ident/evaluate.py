@@ -581,9 +581,7 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         truth = _truth(params, (b.attitude or {}).get("rate_hz"))
         opt = optimal_gains(b.loop, b.rate_hz, rule=b.rule, **truth)
         rule = b.rule.gains_batch(b.loop, **truth)
-        b2 = load_second_bundle(d, b) if sim2 is not None and spec.second_network else None
-        if b2 is not None and abs(b2.rule.beta - beta2) > 1e-6:
-            b2 = None  # a network of another beta than the run flown
+        b2 = load_second_bundle(d, b, beta=beta2) if sim2 is not None and spec.second_network else None
         ids = _identify_all(b, sim, r, spec.optimum, spec.decision, spec.guard, spec.inputs, spec.combine, sim2,
                             spec.family, b2)
         refused = np.array([x is None for x in ids["answers"]])
@@ -592,8 +590,9 @@ def evaluate(spec: EvalSpec, *, models, recipe, log=None) -> dict[str, Any]:
         per.append({"att_class": a, "model_dir": str(d), "J": J, "refused": refused, "no_class": no_class,
                     "level": level, "kind": kind,
                     "why": ids["why"], "ms": ids["ms"], "lead": ids["lead"], "response": ids["response"],
-                    "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"], "second_network": ids["second_network"],
-                    "second_model_dir": None if b2 is None else str(b2.dir), "truth": truth, "sim": sim, "answers": ids["answers"]})
+                    "response_period": ids["response_period"], "top": ids["top"], "second": ids["second"],
+                    "second_network": ids["second_network"], "second_model_dir": None if b2 is None else str(b2.dir),
+                    "truth": truth, "sim": sim, "answers": ids["answers"]})
         log(f"{'attitude class ' + str(a) + ': ' if a is not None else ''}identified {int((~refused).sum())}/"
             f"{spec.n} ({time.perf_counter() - t0:.0f} s)")
     cat = lambda k: np.concatenate([p[k] for p in per])  # noqa: E731

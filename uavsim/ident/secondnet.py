@@ -106,8 +106,10 @@ def second_model_dir(model_dir: str | os.PathLike) -> Path | None:
     return cand if (cand / META_FILE).is_file() else None
 
 
-def load_second_bundle(model_dir: str | os.PathLike, first: ModelBundle) -> ModelBundle | None:
-    """The second network of ``first`` (folder ``model_dir``), checked against it; None where there is none.
+def load_second_bundle(model_dir: str | os.PathLike, first: ModelBundle, *,
+                       beta: float | None = None) -> ModelBundle | None:
+    """The second network of ``first`` (folder ``model_dir``), checked against it; None where there is none,
+    or where it was trained at another ``beta`` than the second run's (``beta``, when given).
 
     Raises ``UserError`` where it classifies another loop or another grid, or was trained at the first's ``beta``.
     """
@@ -123,6 +125,8 @@ def load_second_bundle(model_dir: str | os.PathLike, first: ModelBundle) -> Mode
         raise UserError(f"{d}: its classes are not those of {model_dir} (a network of another grid)")
     if abs(b.rule.beta - first.rule.beta) < 1e-6:
         raise UserError(f"{d}: trained at the first network's beta ({first.rule.beta:g}), not a second run's")
+    if beta is not None and abs(float(beta) - b.rule.beta) > 1e-6:
+        return None  # a second run at another beta than its network's: the point alone
     return b
 
 

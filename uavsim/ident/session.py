@@ -9,7 +9,9 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    bundle's cost matrix and (inner loops' default, ``decision="blend"``) over the belief's
    models fitted to the measured point (``uavsim.ident.select.decide_class``;
    ``decision="argmax"``: the most likely class, also what a bundle exported without the
-   matrix answers);
+   matrix answers); with a second run, weighed by both measured points (``uavsim.ident.twopoint``)
+   and, where the model root holds a network of that run's ``beta``, by its belief too
+   (``uavsim.ident.secondnet``);
 3. the gains: the table's robust PD of the class over the estimated gain
    ``K_hat`` (``uavsim.ident.gains``), the real-time answer, backed off on the inner
    loops where the answer's fitted model with a few degrees more lag needs it
@@ -409,8 +411,8 @@ def identify_session(path: str | os.PathLike, *, models: str | os.PathLike | Non
             skipped = str(exc)  # a run found, not asked for: one point, and the answer says why
     reading = None
     if second is not None and second_network:
-        b_second = load_second_bundle(d, b)
-        if b_second is not None and abs(float(r2.spec.beta) - b_second.rule.beta) < 1e-6:
+        b_second = load_second_bundle(d, b, beta=float(r2.spec.beta))
+        if b_second is not None:
             if not duty_check:
                 b_second = replace(b_second, bias_trim="off")
             reading = second_reading(b_second, r2.data.y, relay_command(r2.data.u, h2, b2, r2.spec.bias_trim),
