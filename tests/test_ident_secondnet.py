@@ -18,6 +18,7 @@ from _learning_fixtures import CLASSES, three_model  # noqa: F401 (fixture)
 from uavsim.errors import UserError
 from uavsim.formats.session import write_session
 from uavsim.ident.bundle import load_bundle
+from uavsim.ident.family import unsteady_spread
 from uavsim.ident.secondnet import (
     SECOND_NET_SUFFIX,
     UNSTEADY_SPREAD,
@@ -27,7 +28,6 @@ from uavsim.ident.secondnet import (
     load_second_bundle,
     multiply_beliefs,
     second_model_dir,
-    unsteady_spread,
 )
 from uavsim.ident.session import identify_session
 from uavsim.learning.decision import softmax
@@ -158,3 +158,33 @@ def test_evaluate_reads_the_second_run_with_its_network(two_runs):
     assert sr["network"].endswith(f"altitude{SECOND_NET_SUFFIX}") and 1 <= sr["network_read"] <= sr["two_points"]
     assert off["second_run"]["network"] is None and off["second_run"]["network_read"] == 0
     assert off["second_run"]["two_points"] == sr["two_points"]
+
+
+def test_the_guard_closes_at_the_second_point_where_the_first_measured_no_phase(two_runs):
+    """A first point whose cycles scatter beyond ``GUARD_SECOND_POINT_SPREAD`` times the family's limits measured
+    no phase: the one-point guard is closed at the (steady) second run's point instead, and says so."""
+    from uavsim.control.relay import relay_command
+    from uavsim.formats.session import read_session
+    from uavsim.ident.cycle import extract_cycle
+    from uavsim.ident.guard import GUARD_SECOND_POINT_SPREAD, answer_guard
+    from uavsim.ident.session import second_cycle
+
+    s = read_session(two_runs["session"])
+    b = load_bundle(two_runs["root"] / "altitude")
+    r1, r2 = s.runs
+    f1 = extract_cycle(r1.data.y, relay_command(r1.data.u, H, 0.1, r1.spec.bias_trim), rate_hz=200.0, h=H, bias=0.1,
+                       bundle=b)
+    f2 = second_cycle(r2.data.y, relay_command(r2.data.u, H, 0.1, r2.spec.bias_trim), rate_hz=200.0, h=H, bias=0.1,
+                      cycles=b.cycles, loop="altitude")
+    ans = identify_session(two_runs["session"], models=two_runs["model"])
+    g, p, c = ans["gains_table"], np.full(b.n_classes, 1.0 / b.n_classes), ans["class"]
+    kw = {"kp": g["kp"], "kd": g["kd"], "derivative_filter_hz": g["derivative_filter_hz"], "p_network": p}
+    loose = replace(f1, response_spread=(0.1 * GUARD_SECOND_POINT_SPREAD * 1.2, 0.3), response_cycles=4)
+    assert unsteady_spread(loose) >= GUARD_SECOND_POINT_SPREAD > unsteady_spread(f1)
+    at_loose = answer_guard(b, p, c, f1.response, f1.response_period, first=loose, second=f2, **kw)
+    steady = answer_guard(b, p, c, f1.response, f1.response_period, first=f1, second=f2, **kw)
+    at_second = answer_guard(b, p, c, f2.response, f2.response_period, **kw)
+    assert at_loose["one_point"] == "second" and steady["one_point"] == "first"
+    assert (at_loose["own_scale"], at_loose["belief_scale"]) == (at_second["own_scale"], at_second["belief_scale"])
+    # the point matters here: closed at the first point the same PD holds at another factor
+    assert (steady["own_scale"], steady["belief_scale"]) != (at_second["own_scale"], at_second["belief_scale"])

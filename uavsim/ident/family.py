@@ -88,7 +88,8 @@ from uavsim.learning.decision import COST_CLIP
 __all__ = ["FAMILY_T2_POINTS", "FAMILY_FLAT", "FAMILY_SCALES", "FAMILY_PHASE_DEG", "FAMILY_SPREAD_LIMITS",
            "FAMILY_OTHER_CHI2", "FAMILY_UNSTEADY_CHI2",
            "FAMILY_MIN_CYCLES", "FAMILY_REFERENCE_CYCLES", "DEFAULT_FAMILY", "FamilyAnswer", "default_family",
-           "SECOND_SPREAD_LIMITS", "point_spread", "other_point_chi2", "family_applies", "family_members", "family_gains"]
+           "SECOND_SPREAD_LIMITS", "point_spread", "unsteady_spread", "other_point_chi2", "family_applies",
+           "family_members", "family_gains"]
 
 #: log-spaced drag time constants of the box the family is taken at (beside every class's own)
 FAMILY_T2_POINTS = 12
@@ -173,6 +174,13 @@ def _half_width(m: int) -> float:
     from scipy.stats import t
 
     return float(t.ppf(0.975, m - 1) / math.sqrt(m - 1))
+
+
+def unsteady_spread(f) -> float:
+    """How unsteady a measured point is: its cycles' spread over ``FAMILY_SPREAD_LIMITS`` (the larger of the
+    gain's and the phase's parts), as ``point_spread`` scales it; ``f``: a ``CycleFeatures``."""
+    sg, sp = point_spread(f.response_spread, f.response_cycles)
+    return max(sg / FAMILY_SPREAD_LIMITS[0], math.degrees(sp) / FAMILY_SPREAD_LIMITS[1])
 
 
 def family_applies(spread, response_cycles: int, *, limits=FAMILY_SPREAD_LIMITS,

@@ -43,6 +43,8 @@ the same batch as the answer's own (about 1 ms more).
 
 With a second relay run (``answer_guard``'s ``second``) the guard backs off no further than the
 models both measured points allow ask (``uavsim.ident.lagfamily``: the larger of the two factors).
+Where the first point measured no phase at all (``GUARD_SECOND_POINT_SPREAD``) and the second run's cycle
+is steady, the one-point factor is closed at the second run's point.
 
     from uavsim.ident.guard import answer_guard, guard_scale
     s = guard_scale(bundle, cls, response, response_period, kp=kp, kd=kd, derivative_filter_hz=fhz)   # (m,)
@@ -55,6 +57,7 @@ from __future__ import annotations
 import numpy as np
 
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.family import SECOND_SPREAD_LIMITS, family_applies, unsteady_spread
 from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 
 __all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "GUARD_BELIEFS", "GUARD_BELIEF_MIN",
@@ -79,6 +82,14 @@ GUARD_BELIEF_MIN = 0.05
 #: the 7.5 chosen over 4 backed off well-measured answers too far (development seeds 11-20, runs of 13 cycles:
 #: p95 1.102 -> 1.094, max 2.15 -> 2.03; 5.0: p95 1.096, max 2.56; docs/results/identification.md)
 GUARD_BELIEF_PHASE_DEG: dict[str, float] = {"altitude": 5.0, "attitude": 6.25}
+#: a first point whose spread is beyond this many times the family's steadiness limits
+#: (``uavsim.ident.family.unsteady_spread``) measured no phase: with a second run whose cycle is steady,
+#: the one-point guard closes the answer's PD on models fitted to that run's point instead. Development seeds
+#: 11-20 (altitude, with the second run's network; 21 of 3,000 points are that loose): unstable answers
+#: 3 -> 1, pooled p95 1.0755 -> 1.0753; 16 and 25 gave 1 unstable at p95 1.0790 and 1.0766, and every
+#: unsteady point (8 times) 1 at 1.0870 (docs/results/identification.md). Attitude: no point so loose
+#: passes its scatter refusal
+GUARD_SECOND_POINT_SPREAD = 40.0
 
 
 def default_guard(loop: str, guard: bool | None) -> bool:
@@ -188,10 +199,15 @@ def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_p
     The answer's class and the belief's (``belief_guard_scale``) are fitted and closed in one
     batch. Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``,
     ``belief_scale``, ``belief_classes``, ``belief_phase_deg``; with the lag family, ``scale_one_point``
-    (the factor without it) and ``lag_family`` (``lag_family_scale``'s answer). ``first``, ``second``: the
-    two runs' cycles; ``p_network``: the network's belief before any weighing by the points (the lag family
-    weighs its members by the points itself).
+    (the factor without it), ``lag_family`` (``lag_family_scale``'s answer) and ``one_point``: the run whose
+    point the one-point factor was closed at (``second`` where the first point is beyond
+    ``GUARD_SECOND_POINT_SPREAD``). ``first``, ``second``: the two runs' cycles; ``p_network``: the network's
+    belief before any weighing by the points (the lag family weighs its members by the points itself).
     """
+    at_second = (first is not None and second is not None and unsteady_spread(first) >= GUARD_SECOND_POINT_SPREAD
+                 and family_applies(second.response_spread, second.response_cycles, limits=SECOND_SPREAD_LIMITS))
+    if at_second:
+        response, response_period = second.response, second.response_period
     top = _belief_classes(bundle, p, cls, GUARD_BELIEFS, GUARD_BELIEF_MIN)
     bp = GUARD_BELIEF_PHASE_DEG.get(bundle.loop)
     s = _scales_on(bundle, [int(cls), *top], [GUARD_PHASE_DEG] + [bp] * len(top), response, response_period,
@@ -202,5 +218,6 @@ def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_p
     if second is not None and bundle.loop in LAG_GUARD_LOOPS:  # no further back than the lag family asks
         lag = lag_family_scale(bundle, p if p_network is None else p_network, first, second, kp=kp, kd=kd,
                                derivative_filter_hz=derivative_filter_hz, scales=GUARD_SCALES)
-        out.update({"scale_one_point": out["scale"], "scale": max(out["scale"], lag["scale"]), "lag_family": lag})
+        out.update({"scale_one_point": out["scale"], "scale": max(out["scale"], lag["scale"]), "lag_family": lag,
+                    "one_point": "second" if at_second else "first"})
     return out

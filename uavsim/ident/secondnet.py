@@ -12,8 +12,8 @@ the belief becomes
 
 (the beliefs of two independent looks at the process, on the same grid of classes).
 ``w`` is 1, except where the first run's point is unsteady: its spread, in units of
-``uavsim.ident.family.FAMILY_SPREAD_LIMITS`` and scaled as ``point_spread`` scales it, beyond
-``UNSTEADY_SPREAD``, while the second run's cycle is steady within ``SECOND_SPREAD_LIMITS``.
+``uavsim.ident.family.FAMILY_SPREAD_LIMITS`` (``unsteady_spread``), beyond ``UNSTEADY_SPREAD``,
+while the second run's cycle is steady within ``SECOND_SPREAD_LIMITS``.
 There ``w`` is ``UNSTEADY_TEMPER``: under 15-20 % noise the first run's small cycle can
 carry no limit cycle at all, and its network is then confident about noise (development
 seed 14: belief 0.99999 on a class whose PD is unstable on the process, read off a point 96
@@ -37,7 +37,6 @@ and the seeds whose p95 is over 1.10 from 3 to 0, with the same 3 unstable answe
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,19 +47,14 @@ from uavsim.data.preprocess import CycleFeatures
 from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle, load_bundle
 from uavsim.ident.cycle import extract_cycle
-from uavsim.ident.family import (
-    FAMILY_SPREAD_LIMITS,
-    SECOND_SPREAD_LIMITS,
-    family_applies,
-    point_spread,
-)
+from uavsim.ident.family import SECOND_SPREAD_LIMITS, family_applies, unsteady_spread
 from uavsim.ident.select import cycle_activations
 from uavsim.learning.decision import softmax
 from uavsim.learning.export import META_FILE
 from uavsim.lumped.params import BOX_KEYS
 
 __all__ = ["SECOND_NET_SUFFIX", "UNSTEADY_SPREAD", "UNSTEADY_TEMPER", "SecondReading", "second_model_dir",
-           "load_second_bundle", "second_reading", "unsteady_spread", "first_weight", "multiply_beliefs"]
+           "load_second_bundle", "second_reading", "first_weight", "multiply_beliefs"]
 
 #: the second network's folder beside the first's: ``training/runs/altitude-second``
 SECOND_NET_SUFFIX = "-second"
@@ -140,12 +134,6 @@ def second_reading(bundle: ModelBundle, y: np.ndarray, u: np.ndarray, *, rate_hz
         return None
     return SecondReading(activations=cycle_activations(bundle, f), temperature=bundle.temperature,
                          model_dir=str(bundle.dir), beta=bundle.rule.beta)
-
-
-def unsteady_spread(f: CycleFeatures) -> float:
-    """How unsteady a point is: its spread over ``FAMILY_SPREAD_LIMITS`` (the larger part), as ``point_spread`` scales it."""
-    sg, sp = point_spread(f.response_spread, f.response_cycles)
-    return max(sg / FAMILY_SPREAD_LIMITS[0], math.degrees(sp) / FAMILY_SPREAD_LIMITS[1])
 
 
 def first_weight(first: CycleFeatures, second: CycleFeatures) -> float:

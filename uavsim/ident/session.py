@@ -65,6 +65,7 @@ from uavsim.ident.family import (
     family_applies,
     family_gains,
     point_spread,
+    unsteady_spread,
 )
 from uavsim.ident.gains import (
     fitted_model,
@@ -80,7 +81,6 @@ from uavsim.ident.secondnet import (
     load_second_bundle,
     multiply_beliefs,
     second_reading,
-    unsteady_spread,
 )
 from uavsim.ident.select import cycle_activations, decide_class
 from uavsim.ident.twopoint import SECOND_RUN_AUTO, auto_second_run
