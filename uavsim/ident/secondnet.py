@@ -25,7 +25,7 @@ The guard's lag family (``uavsim.ident.lagfamily``) keeps weighing its members b
 network's (tempered) belief, as it was set.
 
 On development seeds 11-20 (3,000 off-grid altitude processes, noise 0-20 %, both runs flown in
-MuJoCo with a user's settings) the second network took the pooled p95 of J from 1.0917 to 1.0766,
+MuJoCo with a user's settings) the second network took the pooled p95 of J from 1.0917 to 1.0755,
 and the seeds whose p95 is over 1.10 from 3 to 0, with the same 3 unstable answers of 3,000
 (docs/results/identification.md). Without the tempering it answered 5 unstable.
 
