@@ -20,6 +20,7 @@ from uavsim.formats.session import write_session
 from uavsim.ident.bundle import load_bundle
 from uavsim.ident.family import unsteady_spread
 from uavsim.ident.secondnet import (
+    LOST_TEMPER,
     SECOND_NET_SUFFIX,
     UNSTEADY_SPREAD,
     UNSTEADY_TEMPER,
@@ -140,6 +141,36 @@ def test_beliefs_multiply_and_an_unsteady_first_point_is_tempered():
     assert first_weight(loose, steady) == first_weight(phase, steady) == UNSTEADY_TEMPER
     # the second run's cycle not steady either: nothing to prefer, no tempering
     assert first_weight(loose, loose) == 1.0
+    # a first point that is no limit cycle of the relay: its network is ignored, where the second run is steady
+    assert first_weight(steady, steady, lost=True) == first_weight(loose, steady, lost=True) == LOST_TEMPER
+    assert first_weight(loose, loose, lost=True) == 1.0
+
+
+def test_a_point_lagging_far_beyond_the_relays_phase_measured_no_phase():
+    """A relay at ``beta`` puts the loop where ``arg G = -pi + asin(beta)``: a point lagging beyond that by more
+    than ``PHASE_LAG_MAX_DEG`` is no limit cycle of the relay (``phase_lost``), and ``measured_no_phase`` says so
+    for a point of steady cycles too."""
+    import math
+
+    from uavsim.data.preprocess import held_response
+    from uavsim.ident.cycle import PHASE_LAG_MAX_DEG, phase_lead, phase_lost
+    from uavsim.ident.guard import measured_no_phase
+
+    beta, rate, period = -0.73, 200.0, 0.5
+    w = 2 * math.pi / period
+    hold = held_response(1.0, w, rate)
+
+    def point(lag_deg: float) -> complex:  # a point lagging the relay's phase by lag_deg, hold included
+        return 0.3 * np.exp(1j * (-math.pi + math.asin(beta) - math.radians(lag_deg))) * hold
+
+    assert phase_lead(point(0.0), period, beta, rate) == pytest.approx(0.0, abs=1e-9)
+    assert phase_lead(point(30.0), period, beta, rate) == pytest.approx(-30.0)
+    assert not phase_lost(point(0.5 * PHASE_LAG_MAX_DEG), period, beta, rate)
+    assert phase_lost(point(PHASE_LAG_MAX_DEG + 5.0), period, beta, rate)
+    b = SimpleNamespace(rule=SimpleNamespace(beta=beta), input_rate_hz=rate)
+    steady = dict(response_spread=(0.01, np.radians(0.2)), response_cycles=4, response_period=period)
+    assert not measured_no_phase(b, SimpleNamespace(response=point(10.0), **steady))
+    assert measured_no_phase(b, SimpleNamespace(response=point(120.0), **steady))
 
 
 def test_evaluate_reads_the_second_run_with_its_network(two_runs):

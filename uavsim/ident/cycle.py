@@ -57,10 +57,10 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.ident.bundle import ModelBundle
 from uavsim.ident.response import phase_se_deg
 
-__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED", "IDENT_CYCLES_DROPPED",
-           "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
+__all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "PHASE_LAG_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED",
+           "IDENT_CYCLES_DROPPED", "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
-           "extract_cycle", "response_cycles", "phase_lead", "phase_refusal", "period_refusal", "saturation_refusal",
+           "extract_cycle", "response_cycles", "phase_lead", "phase_lost", "phase_refusal", "period_refusal", "saturation_refusal",
            "duty_refusal", "DUTY_REFUSAL_PREFIX", "scatter_refusal", "POINT_PHASE_SE_LIMIT_DEG"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle
@@ -70,6 +70,10 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 #: NP-MRFT's own cycles lead by up to ~55 deg with a user's settings (a long observation window and a
 #: relay bias of half h, even without noise: ``uavsim evaluate``), and identify as well as the others
 PHASE_LEAD_MAX_DEG = 70.0
+#: a cycle lagging more than this (deg) beyond the relay's phase is no limit cycle of the relay either
+#: (``phase_lost``): on the altitude episodes of development seeds 11-20 the first runs' points lag at most
+#: 31 deg beyond it, but for one at 20 % noise, 120 deg (a two-cycle "cycle" of noise)
+PHASE_LAG_MAX_DEG = 70.0
 #: a network trained on bias-trimmed relays refuses a cycle whose duty error ``|2 d - 1|`` (about the relay
 #: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (a trim not settled under
 #: 10-20 % noise; development seeds 11-13: 8 of 1800 trimmed runs refused so, which answered had J 1.13-2.3 and
@@ -174,6 +178,12 @@ def phase_lead(response: complex, response_period: float, beta: float, rate_hz: 
     ph = float(np.angle(complex(response) / held_response(1.0, w, rate_hz)))
     ph = ph - 2.0 * math.pi if ph > 0 else ph  # a relay cycle lags between pi/2 and 2 pi
     return math.degrees(ph - (-math.pi + math.asin(float(beta))))
+
+
+def phase_lost(response: complex, response_period: float, beta: float, rate_hz: float = 200.0) -> bool:
+    """Whether a measured point lags more than ``PHASE_LAG_MAX_DEG`` beyond the phase a relay at ``beta`` puts
+    the loop at (``phase_lead``): its cycle measured no phase of the process."""
+    return phase_lead(response, response_period, beta, rate_hz) < -PHASE_LAG_MAX_DEG
 
 
 def phase_refusal(response: complex, response_period: float, beta: float | None, rate_hz: float = 200.0) -> str | None:

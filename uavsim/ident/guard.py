@@ -43,8 +43,10 @@ the same batch as the answer's own (about 1 ms more).
 
 With a second relay run (``answer_guard``'s ``second``) the guard backs off no further than the
 models both measured points allow ask (``uavsim.ident.lagfamily``: the larger of the two factors).
-Where the first point measured no phase at all (``GUARD_SECOND_POINT_SPREAD``) and the second run's cycle
-is steady, the one-point factor is closed at the second run's point.
+Where the first point measured no phase at all (``measured_no_phase``: its cycles scatter beyond
+``GUARD_SECOND_POINT_SPREAD`` times the steadiness limits, or it lags beyond the relay's phase by more than
+``uavsim.ident.cycle.PHASE_LAG_MAX_DEG``) and the second run's cycle is steady, the one-point factor is
+closed at the second run's point.
 
     from uavsim.ident.guard import answer_guard, guard_scale
     s = guard_scale(bundle, cls, response, response_period, kp=kp, kd=kd, derivative_filter_hz=fhz)   # (m,)
@@ -57,11 +59,12 @@ from __future__ import annotations
 import numpy as np
 
 from uavsim.ident.bundle import ModelBundle
+from uavsim.ident.cycle import phase_lost
 from uavsim.ident.family import SECOND_SPREAD_LIMITS, family_applies, unsteady_spread
 from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 
 __all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "GUARD_BELIEFS", "GUARD_BELIEF_MIN",
-           "GUARD_BELIEF_PHASE_DEG", "default_guard", "guard_scale", "belief_guard_scale", "answer_guard"]
+           "GUARD_BELIEF_PHASE_DEG", "GUARD_SECOND_POINT_SPREAD", "default_guard", "measured_no_phase", "guard_scale", "belief_guard_scale", "answer_guard"]
 
 #: the loops whose identification applies the guard unless told otherwise (module docstring)
 DEFAULT_GUARD: dict[str, bool] = {"altitude": True, "attitude": True, "lateral": False}
@@ -95,6 +98,15 @@ GUARD_SECOND_POINT_SPREAD = 40.0
 def default_guard(loop: str, guard: bool | None) -> bool:
     """``guard`` where given, else the loop's ``DEFAULT_GUARD``."""
     return DEFAULT_GUARD.get(loop, False) if guard is None else bool(guard)
+
+
+def measured_no_phase(bundle: ModelBundle, f) -> bool:
+    """Whether the network's run's point (``f``, a ``CycleFeatures``) measured no phase of the process: its
+    cycles' spread beyond ``GUARD_SECOND_POINT_SPREAD`` times the steadiness limits
+    (``uavsim.ident.family.unsteady_spread``), or a lag beyond the relay's phase at the bundle's ``beta``
+    over ``uavsim.ident.cycle.PHASE_LAG_MAX_DEG`` (``phase_lost``)."""
+    return unsteady_spread(f) >= GUARD_SECOND_POINT_SPREAD or phase_lost(f.response, f.response_period,
+                                                                          bundle.rule.beta, bundle.input_rate_hz)
 
 
 def guard_scale(bundle: ModelBundle, cls, response, response_period, *, kp, kd, derivative_filter_hz,
@@ -200,11 +212,11 @@ def answer_guard(bundle: ModelBundle, p, cls: int, response: complex, response_p
     batch. Returns the answer's ``guard`` entry: ``scale``, ``phase_deg``, ``own_scale``,
     ``belief_scale``, ``belief_classes``, ``belief_phase_deg``; with the lag family, ``scale_one_point``
     (the factor without it), ``lag_family`` (``lag_family_scale``'s answer) and ``one_point``: the run whose
-    point the one-point factor was closed at (``second`` where the first point is beyond
-    ``GUARD_SECOND_POINT_SPREAD``). ``first``, ``second``: the two runs' cycles; ``p_network``: the network's
+    point the one-point factor was closed at (``second`` where the first point measured no phase,
+    ``measured_no_phase``). ``first``, ``second``: the two runs' cycles; ``p_network``: the network's
     belief before any weighing by the points (the lag family weighs its members by the points itself).
     """
-    at_second = (first is not None and second is not None and unsteady_spread(first) >= GUARD_SECOND_POINT_SPREAD
+    at_second = (first is not None and second is not None and measured_no_phase(bundle, first)
                  and family_applies(second.response_spread, second.response_cycles, limits=SECOND_SPREAD_LIMITS))
     if at_second:
         response, response_period = second.response, second.response_period

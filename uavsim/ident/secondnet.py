@@ -14,7 +14,9 @@ the belief becomes
 ``w`` is 1, except where the first run's point is unsteady: its spread, in units of
 ``uavsim.ident.family.FAMILY_SPREAD_LIMITS`` (``unsteady_spread``), beyond ``UNSTEADY_SPREAD``,
 while the second run's cycle is steady within ``SECOND_SPREAD_LIMITS``.
-There ``w`` is ``UNSTEADY_TEMPER``: under 15-20 % noise the first run's small cycle can
+There ``w`` is ``UNSTEADY_TEMPER``, and ``LOST_TEMPER`` (0: the first network ignored) where the first
+point lags so far beyond the relay's phase that it is no limit cycle of the relay
+(``uavsim.ident.cycle.phase_lost``): under 15-20 % noise the first run's small cycle can
 carry no limit cycle at all, and its network is then confident about noise (development
 seed 14: belief 0.99999 on a class whose PD is unstable on the process, read off a point 96
 degrees from the process's response), while the second run's cycle, several times larger for
@@ -53,7 +55,7 @@ from uavsim.learning.decision import softmax
 from uavsim.learning.export import META_FILE
 from uavsim.lumped.params import BOX_KEYS
 
-__all__ = ["SECOND_NET_SUFFIX", "UNSTEADY_SPREAD", "UNSTEADY_TEMPER", "SecondReading", "second_model_dir",
+__all__ = ["SECOND_NET_SUFFIX", "UNSTEADY_SPREAD", "UNSTEADY_TEMPER", "LOST_TEMPER", "SecondReading", "second_model_dir",
            "load_second_bundle", "second_reading", "first_weight", "multiply_beliefs"]
 
 #: the second network's folder beside the first's: ``training/runs/altitude-second``
@@ -65,6 +67,13 @@ UNSTEADY_SPREAD = 8.0
 #: the power on the first network's belief where its point is unsteady and the second run's steady
 #: (1: no change; 0: the first network ignored, which raised the p95 on development seeds 11, 14, 16, 20)
 UNSTEADY_TEMPER = 0.5
+#: the power where the first point lags beyond the relay's phase by more than
+#: ``uavsim.ident.cycle.PHASE_LAG_MAX_DEG`` (no limit cycle of the relay: ``phase_lost``) and the second run's is
+#: steady: that run's network read noise (development seed 14: a point 120 deg beyond the relay's phase,
+#: belief 1.0 on a class whose PD, even at x0.5, is unstable on the process; the second network put 3e-16 on
+#: it). Not where the point only scatters (``unsteady_spread``): there 0 instead of ``UNSTEADY_TEMPER`` beyond
+#: the guard's 40 times the limits moved 4 answers of development seed 14, 3 of them up (to J 1.093)
+LOST_TEMPER = 0.0
 
 
 @dataclass(frozen=True)
@@ -136,12 +145,15 @@ def second_reading(bundle: ModelBundle, y: np.ndarray, u: np.ndarray, *, rate_hz
                          model_dir=str(bundle.dir), beta=bundle.rule.beta)
 
 
-def first_weight(first: CycleFeatures, second: CycleFeatures) -> float:
-    """The power on the first network's belief (module docstring): ``UNSTEADY_TEMPER`` or 1."""
-    if unsteady_spread(first) >= UNSTEADY_SPREAD and family_applies(
-            second.response_spread, second.response_cycles, limits=SECOND_SPREAD_LIMITS):
-        return UNSTEADY_TEMPER
-    return 1.0
+def first_weight(first: CycleFeatures, second: CycleFeatures, *, lost: bool = False) -> float:
+    """The power on the first network's belief (module docstring): ``LOST_TEMPER`` where the first point is no
+    limit cycle of the relay (``lost``: ``uavsim.ident.cycle.phase_lost`` at the network's ``beta``),
+    ``UNSTEADY_TEMPER`` where it is unsteady, each only where the second run's cycle is steady; else 1."""
+    if not family_applies(second.response_spread, second.response_cycles, limits=SECOND_SPREAD_LIMITS):
+        return 1.0
+    if lost:
+        return LOST_TEMPER
+    return UNSTEADY_TEMPER if unsteady_spread(first) >= UNSTEADY_SPREAD else 1.0
 
 
 def multiply_beliefs(activations: np.ndarray, temperature: float, reading: SecondReading) -> np.ndarray:

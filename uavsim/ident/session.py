@@ -55,7 +55,7 @@ from uavsim.errors import NoOscillation, UserError
 from uavsim.formats.session import RELAY_KINDS
 from uavsim.ident.bundle import ModelBundle, load_bundle, resolve_model_dir
 from uavsim.ident.consistent import consistent_activations
-from uavsim.ident.cycle import extract_cycle
+from uavsim.ident.cycle import extract_cycle, phase_lost
 from uavsim.ident.family import (
     FAMILY_OTHER_CHI2,
     FAMILY_SPREAD_LIMITS,
@@ -167,7 +167,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
     if optimum not in OPTIMUM_MODES:
         raise UserError(f"optimum must be one of {', '.join(OPTIMUM_MODES)}, got {optimum!r}")
     guard = default_guard(bundle.loop, guard)
-    w_first = 1.0 if second is None or second_network is None else first_weight(f, second)
+    w_first = 1.0 if second is None or second_network is None else first_weight(
+        f, second, lost=phase_lost(f.response, f.response_period, bundle.rule.beta, bundle.input_rate_hz))
     act, n_out = consistent_activations(bundle, w_first * cycle_activations(bundle, f, combine=combine), f)
     act_net = act  # the network's own belief (the lag family weighs its members by the points itself)
     if second is not None:  # the belief weighed by how each class fits both measured points
