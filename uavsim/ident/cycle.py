@@ -72,7 +72,7 @@ _SAT_BAND = 0.005  # of the peak-to-peak: "at the extreme level"
 PHASE_LEAD_MAX_DEG = 70.0
 #: a cycle lagging more than this (deg) beyond the relay's phase is no limit cycle of the relay either
 #: (``phase_lost``): on the altitude episodes of development seeds 11-20 the first runs' points lag at most
-#: 31 deg beyond it, but for one at 20 % noise, 120 deg (a two-cycle "cycle" of noise)
+#: 54 deg beyond it (all but one at most 31), but for one at 20 % noise, 120 deg (a two-cycle "cycle" of noise)
 PHASE_LAG_MAX_DEG = 70.0
 #: a network trained on bias-trimmed relays refuses a cycle whose duty error ``|2 d - 1|`` (about the relay
 #: bias over h on these loops) is above this: 0.3 % of the trimmed training cycles are (a trim not settled under
