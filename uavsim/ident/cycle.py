@@ -60,7 +60,8 @@ from uavsim.ident.response import phase_se_deg
 __all__ = ["SATURATION_FRACTION", "PHASE_LEAD_MAX_DEG", "PHASE_LAG_MAX_DEG", "DUTY_LIMIT", "MAX_CYCLES_DROPPED",
            "IDENT_CYCLES_DROPPED", "IDENT_RESPONSE_CYCLES", "IDENT_STEADY_TOL",
            "UNEVEN_CYCLE_LOOPS", "IDENT_INPUTS",
-           "extract_cycle", "response_cycles", "phase_lead", "phase_lost", "phase_refusal", "period_refusal", "saturation_refusal",
+           "extract_cycle", "response_cycles", "phase_lead", "phase_lost", "phase_refusal", "period_refusal",
+           "saturation_refusal",
            "duty_refusal", "DUTY_REFUSAL_PREFIX", "scatter_refusal", "POINT_PHASE_SE_LIMIT_DEG"]
 
 #: a cycle whose output sits at its top or bottom level this fraction of the time is clipped, not a relay cycle

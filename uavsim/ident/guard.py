@@ -64,7 +64,8 @@ from uavsim.ident.family import SECOND_SPREAD_LIMITS, family_applies, unsteady_s
 from uavsim.ident.lagfamily import LAG_GUARD_LOOPS, lag_family_scale
 
 __all__ = ["DEFAULT_GUARD", "GUARD_PHASE_DEG", "GUARD_RATIO", "GUARD_SCALES", "GUARD_BELIEFS", "GUARD_BELIEF_MIN",
-           "GUARD_BELIEF_PHASE_DEG", "GUARD_SECOND_POINT_SPREAD", "default_guard", "measured_no_phase", "guard_scale", "belief_guard_scale", "answer_guard"]
+           "GUARD_BELIEF_PHASE_DEG", "GUARD_SECOND_POINT_SPREAD", "default_guard", "measured_no_phase", "guard_scale",
+           "belief_guard_scale", "answer_guard"]
 
 #: the loops whose identification applies the guard unless told otherwise (module docstring)
 DEFAULT_GUARD: dict[str, bool] = {"altitude": True, "attitude": True, "lateral": False}

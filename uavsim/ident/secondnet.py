@@ -55,8 +55,8 @@ from uavsim.learning.decision import softmax
 from uavsim.learning.export import META_FILE
 from uavsim.lumped.params import BOX_KEYS
 
-__all__ = ["SECOND_NET_SUFFIX", "UNSTEADY_SPREAD", "UNSTEADY_TEMPER", "LOST_TEMPER", "SecondReading", "second_model_dir",
-           "load_second_bundle", "second_reading", "first_weight", "multiply_beliefs"]
+__all__ = ["SECOND_NET_SUFFIX", "UNSTEADY_SPREAD", "UNSTEADY_TEMPER", "LOST_TEMPER", "SecondReading",
+           "second_model_dir", "load_second_bundle", "second_reading", "first_weight", "multiply_beliefs"]
 
 #: the second network's folder beside the first's: ``training/runs/altitude-second``
 SECOND_NET_SUFFIX = "-second"
