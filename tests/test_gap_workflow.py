@@ -301,6 +301,40 @@ def test_simulated_step_runs_follow_their_derivative():
     assert err.u[k] - meas.u[k] == pytest.approx(0.3 * a * 0.05 * rate, rel=1e-9)  # the kick, 7x kp e here
 
 
+def test_simulated_runs_clip_the_command_to_the_stated_actuator_range():
+    # a session's [actuator] clips the command as the ESCs do: a symmetric range flies exactly as the
+    # vocabulary's saturation at that limit, one wider than any command as no range, and the
+    # kick of the step's error-form PD is what it clips
+    import dataclasses
+
+    from uavsim.formats.session import ActuatorSpec, Run, RunData, Session
+    from uavsim.gap.simulate import Episode, simulate
+
+    rate, T = 200.0, 120
+    t = np.arange(T) / rate
+    data = RunData(t, np.zeros(T), np.zeros(T), np.zeros(T))
+    spec = dict(kind="step", kp=2.0, kd=0.3, derivative_filter_hz=10.0, step=0.05, step_time=0.2)
+    bare = Session(loop="pitch", control_rate_hz=rate, runs=[Run(RunSpec("e.csv", **spec), data)])
+    model = ModelSpec(K=20.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)
+
+    def fly(session, effect="none", value=0.0):
+        return simulate(session, model, [Episode(0, effect, value)], seed=0, nthread=1)[0]
+
+    free = fly(bare)
+    assert free.u.max() > 0.5  # the kick: 0.3 a 0.05 rate + kp e
+    narrow = fly(dataclasses.replace(bare, actuator=ActuatorSpec(command_min=-0.2, command_max=0.2)))
+    assert np.array_equal(narrow.y, fly(bare, "saturation", 0.2).y)
+    assert not np.allclose(narrow.y, free.y)
+    wide = fly(dataclasses.replace(bare, actuator=ActuatorSpec(command_min=-1e3, command_max=1e3)))
+    assert np.array_equal(wide.y, free.y)
+    # asymmetric: only the upper bound bites on a positive kick
+    upper = fly(dataclasses.replace(bare, actuator=ActuatorSpec(command_min=-1e3, command_max=0.2)))
+    assert not np.allclose(upper.y, free.y)
+    below = np.flatnonzero(narrow.u < -0.2)
+    j = below[0] + 1 if below.size else T  # the two ranges differ from the first command below -0.2 on
+    assert np.array_equal(upper.y[:j], narrow.y[:j]) and j > int(0.2 * rate) + 2
+
+
 def test_staircase_cause_read_off_the_samples():
     """A quantized measurement passes lone samples on a level lattice, a held frame repeats off any lattice."""
     from types import SimpleNamespace

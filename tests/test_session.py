@@ -31,6 +31,7 @@ from uavsim.formats import (
     FORMAT,
     FORMATS,
     LOOPS,
+    ActuatorSpec,
     EffectSpec,
     ModelSpec,
     Run,
@@ -150,7 +151,8 @@ def awkward_session(loop: str = "lateral_x", n: int = 257, seed: int = 0) -> Ses
     ]  # fmt: skip
     effects = [EffectSpec(name, {p: 0.1 + 0.2 for p in params})
                for name, params in EFFECT_PARAMS.items()]  # fmt: skip
-    return Session(loop=loop, control_rate_hz=200.0, runs=runs, model=model, effects=effects)
+    return Session(loop=loop, control_rate_hz=200.0, runs=runs, model=model, effects=effects,
+                   actuator=ActuatorSpec(command_min=-(0.1 + 0.2), command_max=1e-300))
 
 
 def bits(a: np.ndarray) -> bytes:
@@ -163,6 +165,7 @@ def assert_same_session(a: Session, b: Session) -> None:
     # repr of dataclasses shows -0.0 and every float digit, so equal reprs
     # mean equal values bit for bit (== would confuse 0.0 and -0.0).
     assert repr(a.model) == repr(b.model)
+    assert repr(a.actuator) == repr(b.actuator)
     assert repr(a.effects) == repr(b.effects)
     assert a.loop == b.loop
     assert repr(a.control_rate_hz) == repr(b.control_rate_hz)
@@ -213,10 +216,22 @@ def test_round_trip_every_loop(tmp_path: Path, loop: str) -> None:
 
 def test_round_trip_without_model_or_effects(tmp_path: Path) -> None:
     s = awkward_session(n=5)
-    s.model, s.effects = None, []
-    back = read_session(write_session(s, tmp_path / "s"))
-    assert back.model is None and back.effects == []
+    s.model, s.effects, s.actuator = None, [], None
+    folder = write_session(s, tmp_path / "s")
+    assert "[actuator]" not in (folder / "session.toml").read_text()
+    back = read_session(folder)
+    assert back.model is None and back.effects == [] and back.actuator is None
     assert_same_session(s, back)
+
+
+def test_actuator_range_is_written_and_summarized(tmp_path: Path) -> None:
+    s = awkward_session(n=5)
+    s.actuator = ActuatorSpec(command_min=-44.5, command_max=56.25)
+    folder = write_session(s, tmp_path / "a")
+    doc = tomllib.loads((folder / "session.toml").read_text())
+    assert doc["actuator"] == {"command_min": -44.5, "command_max": 56.25}
+    back = read_session(folder)
+    assert session_mod.session_summary(back)["actuator"] == {"command_min": -44.5, "command_max": 56.25}
 
 
 @pytest.mark.parametrize(("run", "other", "key", "word", "default"),
@@ -567,6 +582,16 @@ MALFORMED = {
     "file_number": (doc_case(_set(("runs", 0, "file"), 1)), TOML, "file must be a string"),
     "runs_string": (doc_case(_set(("runs",), "np.csv")), TOML, "array of tables"),
     "model_number": (doc_case(_set(("model",), 1.0)), TOML, "must be a table"),
+    "actuator_number": (doc_case(_set(("actuator",), 3.0)), TOML, "actuator must be a table"),
+    "actuator_missing_max": (doc_case(_set(("actuator",), {"command_min": -3.0})), TOML, "missing key 'command_max'"),
+    "actuator_unknown_key": (doc_case(_set(("actuator",), {"command_min": -3.0, "command_max": 4.0, "max": 1.0})),
+                             TOML, "unknown key"),
+    "actuator_min_positive": (doc_case(_set(("actuator",), {"command_min": 1.0, "command_max": 4.0})), TOML,
+                              "command_min must be < 0"),
+    "actuator_max_zero": (doc_case(_set(("actuator",), {"command_min": -1.0, "command_max": 0})), TOML,
+                          "command_max must be > 0"),
+    "actuator_string": (doc_case(_set(("actuator",), {"command_min": "-1", "command_max": 2.0})), TOML,
+                        "command_min must be a number"),
     "effects_table": (doc_case(_set(("effects",), {"name": "delay"})), TOML, "array of tables"),
     "huge_int": (doc_case(_set(("model", "K"), 10**400)), TOML, "out of range"),
     # bad names
@@ -680,7 +705,7 @@ def test_cli_check_json(tmp_path: Path, monkeypatch, capsys) -> None:
     assert rc == 0, err
     assert out.count("\n") == 1
     obj = json.loads(out)
-    assert set(obj) == {"path", "format", "loop", "control_rate_hz", "model", "runs", "effects"}
+    assert set(obj) == {"path", "format", "loop", "control_rate_hz", "model", "actuator", "runs", "effects"}
     assert obj["format"] == FORMAT
     assert obj["path"] == str(folder)
     assert obj["loop"] == "altitude" and obj["control_rate_hz"] == RATE

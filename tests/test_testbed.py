@@ -282,6 +282,39 @@ def test_step_runs_replay_through_their_pd(short_session):
         np.testing.assert_allclose(u, d.u, rtol=0, atol=1e-9 * np.abs(d.u).max())
 
 
+@pytest.mark.parametrize("loop", ["altitude", "roll", "pitch"])
+def test_command_range_is_where_the_mixer_reaches_an_esc_limit(loop):
+    # the session's [actuator]: at command_max (command_min) one rotor's PWM is at its upper or lower
+    # limit and none beyond; 1 % further, one is beyond
+    plan = plan_session(5, loop=loop)
+    fl = Flight(plan.vehicle, loop, [], np.random.default_rng(0))
+    low, high = fl.command_range()
+    assert low < 0 < high
+    pr, ap = plan.vehicle.propulsion, plan.vehicle.autopilot
+    unit = ap.force_unit_N if loop == "altitude" else ap.moment_unit_Nm
+    axis = {"altitude": 0, "roll": 1, "pitch": 2}[loop]
+
+    def pwm(command):
+        wr = np.zeros(4)
+        wr[axis] = unit * command
+        return fl._pwm(wr)
+
+    def beyond(p):
+        return max(p.max() - pr.pwm_max_us, pr.pwm_min_us - p.min())
+
+    for c in (low, high):
+        assert beyond(pwm(c)) == pytest.approx(0.0, abs=1e-6)
+        assert beyond(pwm(1.01 * c)) > 0.1
+
+
+def test_session_states_the_actuator_range_of_its_flight(short_session):
+    path, _, truth = short_session
+    plan = plan_session(6)
+    low, high = Flight(plan.vehicle, plan.loop, plan.effects, np.random.default_rng(0)).command_range()
+    a = read_session(path).actuator
+    assert (a.command_min, a.command_max) == (low, high)
+
+
 def test_flight_hands_the_reference_to_a_measurement_pd(roll_plan):
     """A PD on the measurement flown on the vehicle: its record replays exactly, and the step sends no kick."""
     g = roll_plan.step_gains

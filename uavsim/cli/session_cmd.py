@@ -118,6 +118,9 @@ def _print_text(summary: dict[str, Any]) -> None:
     print(f"rate     {rate:.6g} Hz (Ts = {1000.0 / rate:.6g} ms)")
     model = summary["model"]
     print(f"model    {_params_text(model) if model else 'none (identification case)'}")
+    actuator = summary["actuator"]
+    if actuator is not None:
+        print(f"actuator {_params_text(actuator)} (command units about the hover trim)")
     effects = summary["effects"]
     names = ", ".join(
         f"{e['name']}({_params_text(e['params'])})" if e["params"] else e["name"] for e in effects

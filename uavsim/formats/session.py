@@ -70,6 +70,7 @@ __all__ = [
     "STEP_DERIVATIVES",
     "RUN_KEYS",
     "SESSION_FILE",
+    "ActuatorSpec",
     "EffectSpec",
     "ModelSpec",
     "Run",
@@ -80,6 +81,7 @@ __all__ = [
     "read_run_csv",
     "read_session",
     "session_summary",
+    "validate_actuator",
     "validate_effect",
     "validate_model",
     "validate_run_data",
@@ -130,7 +132,8 @@ _RUN_PARAMS = (
     "kp", "kd", "derivative_filter_hz", "step", "step_time", "derivative",
 )  # fmt: skip
 _RUN_ALL_KEYS = ("file", "kind", *_RUN_PARAMS)
-_TOP_KEYS = ("format", "loop", "control_rate_hz", "model", "runs", "effects")
+_TOP_KEYS = ("format", "loop", "control_rate_hz", "model", "actuator", "runs", "effects")
+_ACTUATOR_KEYS = ("command_min", "command_max")
 _MODEL_KEYS = ("K", "T_prop", "T1", "T2", "tau", "noise_std")
 _MODEL_REQUIRED = ("K", "T_prop", "T1", "tau")
 
@@ -180,6 +183,21 @@ class ModelSpec:
     tau: float
     T2: float | None = None
     noise_std: float = 0.0
+
+
+@dataclass
+class ActuatorSpec:
+    """The actuators' command range (the ``[actuator]`` table): what the vehicle can deliver.
+
+    Parameters
+    ----------
+    command_min, command_max : float
+        The loop's command (command units, as the runs' ``u``) at which the mixer first drives a
+        motor to its ESC's lowest (highest) output from the hover trim; ``command_min < 0 < command_max``.
+    """
+
+    command_min: float
+    command_max: float
 
 
 @dataclass
@@ -299,6 +317,8 @@ class Session:
         The experiments, at least one.
     model : ModelSpec or None
         Current model of the loop; None means "no model yet".
+    actuator : ActuatorSpec or None
+        The actuators' command range; None: not known (simulations do not clip the command).
     effects : list of EffectSpec
         Effects added on top of the model (written by the gap workflow).
     path : Path or None
@@ -314,6 +334,7 @@ class Session:
     model: ModelSpec | None = None
     effects: list[EffectSpec] = field(default_factory=list)
     path: Path | None = None
+    actuator: ActuatorSpec | None = None
     format: str = FORMAT
 
     @property
@@ -667,6 +688,8 @@ def validate_session(session: Session, folder: str | os.PathLike | None = None) 
     _check_range(rate, "control_rate_hz", toml, ">0")
     if session.model is not None:
         validate_model(session.model, loop, f"{toml}: [model]")
+    if session.actuator is not None:
+        validate_actuator(session.actuator, f"{toml}: [actuator]")
     for i, effect in enumerate(session.effects):
         validate_effect(effect, f"{toml}: [[effects]] #{i + 1}")
     if not session.runs:
@@ -731,6 +754,7 @@ def read_session(path: str | os.PathLike) -> Session:
 
     fmt, loop, rate, model_table, run_tables, effect_tables = _parse_top(doc, where)
     model = _parse_model(model_table, loop, where) if model_table is not None else None
+    actuator = _parse_actuator(doc["actuator"], where) if "actuator" in doc else None
     effects = [_parse_effect(t, i, where) for i, t in enumerate(effect_tables)]
     specs = [_parse_run(t, i, where) for i, t in enumerate(run_tables)]
     if not specs:
@@ -744,7 +768,7 @@ def read_session(path: str | os.PathLike) -> Session:
     validate("session", doc, where)
     runs = [Run(spec, read_run_csv(folder / spec.file, rate)) for spec in specs]
     return Session(loop=loop, control_rate_hz=rate, runs=runs, model=model,
-                   effects=effects, path=folder, format=fmt)  # fmt: skip
+                   effects=effects, path=folder, format=fmt, actuator=actuator)  # fmt: skip
 
 
 def _read_text(path: Path, where: str) -> str:
@@ -810,6 +834,31 @@ def _parse_model(table: dict, loop: str, toml: str) -> ModelSpec:
     model = ModelSpec(**values)
     validate_model(model, loop, where)
     return model
+
+
+def _parse_actuator(table: Any, toml: str) -> ActuatorSpec:
+    where = f"{toml}: [actuator]"
+    if not isinstance(table, dict):
+        raise SessionError(f"{toml}: actuator must be a table ([actuator]), got {_type_name(table)} {_short(table)}")
+    for key in table:
+        if key not in _ACTUATOR_KEYS:
+            raise _unknown_key(where, key, _ACTUATOR_KEYS)
+    for key in _ACTUATOR_KEYS:
+        if key not in table:
+            raise SessionError(f"{where}: missing key {key!r}")
+    actuator = ActuatorSpec(**{k: _number(table[k], k, where) for k in _ACTUATOR_KEYS})
+    validate_actuator(actuator, where)
+    return actuator
+
+
+def validate_actuator(actuator: ActuatorSpec, where: str) -> None:
+    """Check an actuator range: finite, ``command_min < 0 < command_max`` (``SessionError`` naming ``where``)."""
+    lo = _number(actuator.command_min, "command_min", where)
+    hi = _number(actuator.command_max, "command_max", where)
+    if not lo < 0:
+        raise SessionError(f"{where}: command_min must be < 0 (the command is about the hover trim), got {_short(lo)}")
+    if not hi > 0:
+        raise SessionError(f"{where}: command_max must be > 0 (the command is about the hover trim), got {_short(hi)}")
 
 
 def _parse_effect(table: dict, i: int, toml: str) -> EffectSpec:
@@ -998,6 +1047,9 @@ def _session_toml(session: Session) -> str:
             pairs.append(("T2", m.T2))
         pairs += [("tau", m.tau), ("noise_std", m.noise_std)]
         lines += ["", "[model]", *_toml_lines(pairs)]
+    a = session.actuator
+    if a is not None:
+        lines += ["", "[actuator]", *_toml_lines([("command_min", a.command_min), ("command_max", a.command_max)])]
     for run in session.runs:
         spec = run.spec
         required, optional = RUN_KEYS[spec.kind]
@@ -1097,8 +1149,8 @@ def session_summary(session: Session) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``{"path", "format", "loop", "control_rate_hz", "model", "runs", "effects"}``;
-        ``model`` is a dict of the lumped parameters or None; each run has
+        ``{"path", "format", "loop", "control_rate_hz", "model", "actuator", "runs", "effects"}``;
+        ``model`` is a dict of the lumped parameters or None, ``actuator`` of the command range or None; each run has
         ``file``, ``kind``, ``samples``, ``duration_s`` (t[-1] - t[0], s) and
         the parameters of its kind; each effect is ``{"name", "params"}``.
     """
@@ -1122,6 +1174,7 @@ def session_summary(session: Session) -> dict[str, Any]:
         "loop": session.loop,
         "control_rate_hz": float(session.control_rate_hz),
         "model": dataclasses.asdict(session.model) if session.model is not None else None,
+        "actuator": dataclasses.asdict(session.actuator) if session.actuator is not None else None,
         "runs": runs,
         "effects": [{"name": e.name, "params": dict(e.params)} for e in session.effects],
     }

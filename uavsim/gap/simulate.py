@@ -15,7 +15,8 @@ grid is one batch.
 
 The episodes' effects are the registry effects of :mod:`uavsim.model.effects`
 with one parameter value per episode (:func:`batch_effects`), the same code
-that flies sessions everywhere else.
+that flies sessions everywhere else. A session that states its actuators' range
+(``[actuator]``) has its command clipped to it, after the effects, as the ESCs do.
 """
 
 from __future__ import annotations
@@ -240,6 +241,9 @@ def simulate(
     names = [e.effect for e in plans]
     values = [e.value for e in plans]
     fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
+    if session.actuator is not None:
+        # the vehicle's ESCs clip whatever the command effects made of the controller's output
+        fx.append(make_effect("actuator_range", low=session.actuator.command_min, high=session.actuator.command_max))
     ps = [p if e.model is None else model_params(session, e.model) for e in plans]
     ps = [q if e.tau_shift == 0.0 else dataclasses.replace(q, tau=max(q.tau - e.tau_shift, 0.0))
           for q, e in zip(ps, plans, strict=True)]

@@ -75,15 +75,25 @@ class Model(Table):
         return self
 
 
+class Actuator(Table):
+    """The actuators' command range about the hover trim."""
+
+    command_min: Finite = Field(lt=0, description="command at which a motor first reaches its ESC's lowest output, "
+                                                 "command units, < 0")
+    command_max: Finite = Field(gt=0, description="command at which a motor first reaches its ESC's highest output, "
+                                                 "command units, > 0")
+
+
 def _session_file(effect: Any) -> type[Table]:
     class SessionFile(Table):
         """A flight session's session.toml: the loop, the controller rate, the runs (one CSV each),
-        and optionally the loop's model and the effects the gap workflow added."""
+        and optionally the loop's model, the actuators' range and the effects the gap workflow added."""
 
         format: str = Field(description=f"format version, {fmt.FORMAT!r}")
         loop: Literal[fmt.LOOPS]  # type: ignore[valid-type]
         control_rate_hz: Positive = Field(description="rate of the controller's samples, Hz")
         model: Model | None = None
+        actuator: Actuator | None = None
         runs: list[Run] = Field(min_length=1)
         effects: list[effect] = Field(default_factory=list)  # type: ignore[valid-type]
 

@@ -160,6 +160,20 @@ class Flight:
             wr[0] += -a.mass_kg * (oz * oz * (self.data.qpos[2] - self.z0) + 2 * _ZETA * oz * self.data.qvel[2])
         return wr
 
+    def command_range(self) -> tuple[float, float]:
+        """The loop's command (command units) at which the mixer first drives a rotor's PWM to its lower and
+        upper limit from the present hover trim, holds aside: ``(low < 0, high > 0)``, what an autopilot's
+        output range states (the ``[actuator]`` of a session)."""
+        pr = self.v.propulsion
+        ap = self.v.autopilot
+        unit = ap.force_unit_N if self.loop == "altitude" else ap.moment_unit_Nm
+        col = self.mixer[:, _WRENCH[self.loop]] * unit / self.slope_nom  # us per command unit, per rotor
+        up, down = pr.pwm_max_us - self.pwm_hover, pr.pwm_min_us - self.pwm_hover
+        pos, neg = col > 1e-12, col < -1e-12
+        high = min(np.min(up / col[pos], initial=np.inf), np.min(down / col[neg], initial=np.inf))
+        low = max(np.max(down / col[pos], initial=-np.inf), np.max(up / col[neg], initial=-np.inf))
+        return float(low), float(high)
+
     def _pwm(self, wrench: np.ndarray) -> np.ndarray:
         return self.pwm_hover + (self.mixer @ wrench) / self.slope_nom
 

@@ -56,6 +56,7 @@ from uavsim.errors import UserError
 from uavsim.formats.session import (
     NP_MRFT_RUN,
     STEP_RUN,
+    ActuatorSpec,
     Run,
     RunData,
     RunSpec,
@@ -76,7 +77,7 @@ __all__ = ["RECIPE", "STEP_DERIVATIVE", "KINDS", "KIND_WEIGHTS", "DEV_SEEDS", "H
            "session_name", "hover_noise_settings", "hold_controller", "relay_amplitude"]
 
 #: recipe name written in every truth file and set recipe; bump when the bytes of a seed change
-RECIPE = "uavsim-testbed/1"
+RECIPE = "uavsim-testbed/2"
 KINDS = ("single", "pair", "outside", "none")
 #: chance of each kind when all are asked for (renormalised over the kinds asked for)
 KIND_WEIGHTS = {"single": 0.4, "pair": 0.2, "outside": 0.2, "none": 0.2}
@@ -291,6 +292,7 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
     plan = plan_session(seed, kinds)
     v, loop, s = plan.vehicle, plan.loop, plan.scales
     fl = Flight(v, loop, plan.effects, _rng(seed, 3))
+    actuator = ActuatorSpec(*fl.command_range())
     gk = plan.step_gains
 
     def hold() -> PD:
@@ -338,7 +340,7 @@ def testbed_session(seed: int, kinds: tuple[str, ...] = KINDS, *, time_scale: fl
             break
     if not runs:
         raise NoSession(f"testbed seed {seed}: the flight crashed before any run")
-    session = Session(loop=loop, control_rate_hz=RATE_HZ, runs=runs, model=None)
+    session = Session(loop=loop, control_rate_hz=RATE_HZ, runs=runs, model=None, actuator=actuator)
     noise = {"sigma": est.sigma, "T_n": est.T_n, "a_n": est.a_n, "cutoff_hz": est.cutoff_hz,
              "tau_obs_b073": settings[-0.73][0], "a_n_b073": settings[-0.73][1],
              "tau_obs_b030": settings[-0.3][0], "a_n_b030": settings[-0.3][1], "notes": list(est.notes)}  # fmt: skip

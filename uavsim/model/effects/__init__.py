@@ -3,7 +3,8 @@
 Names and parameters follow the effect vocabulary of
 ``docs/formats/session.md`` (delay, lag, gain, saturation, dead_zone,
 rate_limit, bias, quantization, sample_hold, lowpass, noise), plus ``wind``
-and ``pull`` (external forces). One effect is one file; importing this
+and ``pull`` (external forces) and ``actuator_range`` (the vehicle's known
+command range, not searched for). One effect is one file; importing this
 package registers them all. A vocabulary effect's ``session`` term (its
 session parameter, range, identity value, gap search grid and hidden-effect
 draw) makes it part of the session format and the gap workflow
@@ -14,6 +15,7 @@ draw) makes it part of the session format and the gap workflow
 """
 
 from uavsim.model.effects import (  # noqa: F401  (imports register the effects)
+    actuator_range,
     bias,
     dead_zone,
     delay,
