@@ -331,6 +331,34 @@ def test_cli_identifies_when_the_session_has_no_model(monkeypatch, tmp_path, cap
     assert (j["answer"], j["base_source"], j["effect"]) == ("none", "identified", "none")
 
 
+def test_a_session_that_states_its_actuator_range_has_its_own_floors(monkeypatch):
+    # the clip changes what a clean session's base model misses: such a session is judged on the
+    # "+actuator" floors, the decision, the naming rule and the credit alike, and its record re-decides so
+    import dataclasses
+
+    from uavsim.formats.session import ActuatorSpec
+    from uavsim.testbed.score import redecide
+
+    monkeypatch.setattr(iterate, "NONE_GAP", {"attitude": 6.0, "attitude+actuator": 3.0})
+    monkeypatch.setattr(iterate, "CLEAN_GAP", {"attitude": 2.0, "attitude+actuator": 2.0})
+    monkeypatch.setattr(iterate, "CLEAN_REMOVAL", {"attitude": {"saturation": 0.9}, "attitude+actuator": {}})
+    assert iterate.floors_of("roll") == "attitude" and iterate.floors_of("roll", True) == "attitude+actuator"
+    assert iterate.decide(False, 4.0, "pitch", None) == "none"
+    assert iterate.decide(False, 4.0, "pitch", None, actuator=True) == "unexplained"
+    assert not iterate.accepts(5.0, 1.0, "pitch", effect="lag")  # within 6.0
+    assert iterate.accepts(5.0, 1.0, "pitch", effect="lag", actuator=True)
+    assert iterate.clean_credit("pitch") == {"saturation": pytest.approx(3.6)}
+    assert iterate.clean_credit("pitch", actuator=True) == {}
+    gap = 4.0
+    _script(monkeypatch, [("none", gap, gap), ("none", gap, gap)])
+    bare = _session()
+    ranged = dataclasses.replace(bare, actuator=ActuatorSpec(command_min=-2.0, command_max=2.0))
+    assert [iterate.analyse(s).answer for s in (bare, ranged)] == ["none", "unexplained"]
+    rec = {"answer": "none", "found": [], "gap_before": gap, "gap_after": gap, "loop": "roll", "kind": "none",
+           "truth": "none", "identification": None}
+    assert redecide(rec)["answer"] == "none" and redecide({**rec, "actuator": True})["answer"] == "unexplained"
+
+
 def test_identified_naming_needs_a_gap_beyond_a_clean_sessions(monkeypatch):
     monkeypatch.setattr(iterate, "CLEAN_GAP", {"altitude": 4.0, "attitude": 3.0})
     monkeypatch.setattr(iterate, "CLEAN_REMOVAL", {"altitude": {}, "attitude": {"rate_limit": 0.6}})

@@ -30,7 +30,7 @@ class _Flow:
 
 def test_record_keeps_what_was_named_from_its_level(tmp_path, monkeypatch):
     folder = _truth(tmp_path)
-    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "read_session", lambda f: SimpleNamespace(actuator=None))
     monkeypatch.setattr(score, "analyse", lambda *a, **k: _Flow())
     r = score.one(folder, None, "identified", 0)
     assert r["by_level"] == ["noise"] and r["ok"] and abs(r["param_rel_err"] - 0.4 / 3) < 1e-9
@@ -51,7 +51,7 @@ def _record_of_a_read(tmp_path, monkeypatch, truth: dict, found: dict, evidence:
     flow.to_json = lambda: {"found": [found], "by_level": [],
                             "from_samples": [{**found, "evidence": evidence, "gap_without": 20.0, "gap_with": 4.0}],
                             "steps": [], "base_model": dict(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=0.0)}  # fmt: skip
-    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "read_session", lambda f: SimpleNamespace(actuator=None))
     monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
     return score.one(folder, None, "identified", 0)
 
@@ -94,7 +94,7 @@ def test_record_says_which_run_identified_the_base_and_whether_the_duty_check_wa
     flow = _Flow()
     flow.identification = {"run": "r1.csv", "refused_runs": ["r0.csv: relay duty 0.64 over the cycle"],
                            "duty_check": False, "class": 3, "params": {"K": 1.0}, "n_cycles_internal": 9}  # fmt: skip
-    monkeypatch.setattr(score, "read_session", lambda f: None)
+    monkeypatch.setattr(score, "read_session", lambda f: SimpleNamespace(actuator=None))
     monkeypatch.setattr(score, "analyse", lambda *a, **k: flow)
     ident = score.one(folder, None, "identified", 0)["identification"]
     assert ident["run"] == "r1.csv" and ident["duty_check"] is False

@@ -120,6 +120,7 @@ __all__ = [
     "live_runs",
     "format_flow",
     "NONE_GAP",
+    "floors_of",
     "NAME_SHARE",
     "accepts",
     "clean_credit",
@@ -143,12 +144,12 @@ PROPOSE_RATIO = 0.8
 #: sessions, gaps 1.90-5.74; altitude 18, gaps 3.11-6.63. Before: 7.0 and 5.2, set on 7 clean
 #: sessions of seeds 0-23 with an earlier workflow; clean altitude sessions of the held-out sets
 #: since went over 5.2 (three of the 8 of seeds 140000-140063) and were named or ``unexplained``
-NONE_GAP = {"altitude": 7.3, "attitude": 6.4}
+NONE_GAP = {"altitude": 7.3, "attitude": 6.4, "altitude+actuator": 7.3, "attitude+actuator": 6.4}
 #: per loop family, the gap a clean testbed session leaves with an identified base model refitted
 #: on all its runs: the base model's own misfit, which every session carries. The median of the 9
 #: clean development sessions of seeds 0-39 (attitude 2.99-5.22, altitude 3.02-4.66;
 #: docs/results/gap-workflow.md)
-CLEAN_GAP = {"altitude": 4.19, "attitude": 3.84}
+CLEAN_GAP = {"altitude": 4.19, "attitude": 3.84, "altitude+actuator": 4.19, "attitude+actuator": 3.84}
 #: per loop family and candidate, the largest share of a clean development session's squared gap
 #: the candidate removes (the same 9 sessions, rounded up): what it takes out of every session's
 #: misfit (an actuator limit clips the steps' first sample, which the lumped model passes whole),
@@ -159,6 +160,8 @@ CLEAN_REMOVAL: dict[str, dict[str, float]] = {
     "attitude": {"bias": 0.06, "dead_zone": 0.03, "delay": 0.01, "gain": 0.15, "lag": 0.23, "noise": 0.28,
                  "rate_limit": 0.74, "saturation": 0.55},
 }  # fmt: skip
+CLEAN_REMOVAL["altitude+actuator"] = CLEAN_REMOVAL["altitude"]
+CLEAN_REMOVAL["attitude+actuator"] = CLEAN_REMOVAL["attitude"]
 #: an identified session's effect is named when it removes at least this share of the squared gap
 #: beyond a clean session's, itself credited with what it removes from a clean one (the share
 #: NAME_SHARE asks of a model without misfit)
@@ -320,6 +323,13 @@ class FlowResult:
 
 def family(loop: str) -> str:
     return "altitude" if loop == "altitude" else "attitude"
+
+
+def floors_of(loop: str, actuator: bool = False) -> str:
+    """The key of :data:`NONE_GAP`, :data:`CLEAN_GAP` and :data:`CLEAN_REMOVAL` for a session of ``loop``: its
+    family, with ``+actuator`` where the session states its actuators' range (its simulation clips the
+    command, so its clean misfit and what each candidate removes from it are others)."""
+    return family(loop) + ("+actuator" if actuator else "")
 
 
 def live_runs(session: Session) -> tuple[Session, list[str]]:
@@ -488,27 +498,30 @@ def noise_by_level(model: ModelSpec, loop: str, *, staircase: bool = False) -> E
     return EffectSpec("noise", {"std": std})
 
 
-def clean_credit(loop: str) -> dict[str, float]:
-    """Per candidate, the squared gap it removes from a clean session of ``loop``'s family (``run_gap``'s ``credit``)."""
-    f = CLEAN_GAP[family(loop)]
-    return {c: r * f * f for c, r in CLEAN_REMOVAL[family(loop)].items()}
+def clean_credit(loop: str, *, actuator: bool = False) -> dict[str, float]:
+    """Per candidate, the squared gap it removes from a clean session of ``loop``'s family (``run_gap``'s ``credit``);
+    ``actuator``: the session states its actuators' range (:func:`floors_of`)."""
+    key = floors_of(loop, actuator)
+    f = CLEAN_GAP[key]
+    return {c: r * f * f for c, r in CLEAN_REMOVAL[key].items()}
 
 
-def excess_share(gap_before: float, gap_after: float, effect: str, loop: str) -> float:
+def excess_share(gap_before: float, gap_after: float, effect: str, loop: str, *, actuator: bool = False) -> float:
     """Share of the squared gap beyond a clean session's that ``effect`` removes, beyond what it removes from a clean one.
 
     ``(gap_before^2 - credited^2) / (gap_before^2 - CLEAN_GAP^2)``, ``credited`` the gap
     after given back ``effect``'s clean credit (:func:`uavsim.gap.workflow.credited_gap`);
     0 when the gap before is within a clean session's.
     """
-    f = CLEAN_GAP[family(loop)]
+    f = CLEAN_GAP[floors_of(loop, actuator)]
     if not gap_before > f:
         return 0.0
-    cg = credited_gap(effect, gap_after, clean_credit(loop))
+    cg = credited_gap(effect, gap_after, clean_credit(loop, actuator=actuator))
     return (gap_before**2 - cg**2) / (gap_before**2 - f**2)
 
 
-def accepts(gap_before: float, gap_after: float, loop: str, identified: bool = True, effect: str = "") -> bool:
+def accepts(gap_before: float, gap_after: float, loop: str, identified: bool = True, effect: str = "", *,
+            actuator: bool = False) -> bool:
     """Whether ``effect``, which the search proposes (gap before -> after with it), is added to the model.
 
     With a given or session model, when it removes :data:`NAME_SHARE` of the gap. With an
@@ -521,7 +534,8 @@ def accepts(gap_before: float, gap_after: float, loop: str, identified: bool = T
     if not identified:
         share = 1.0 - gap_after / gap_before if gap_before > 0 else 0.0
         return share >= NAME_SHARE
-    return gap_before > NONE_GAP[family(loop)] and excess_share(gap_before, gap_after, effect, loop) >= NAME_EXCESS
+    return (gap_before > NONE_GAP[floors_of(loop, actuator)]
+            and excess_share(gap_before, gap_after, effect, loop, actuator=actuator) >= NAME_EXCESS)
 
 
 def declined(res: GapResult, model: ModelSpec) -> GapResult:
@@ -530,7 +544,8 @@ def declined(res: GapResult, model: ModelSpec) -> GapResult:
                                effects=list(res.effects[:-1]), sims_after=res.sims_before)  # fmt: skip
 
 
-def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, beyond: bool = False) -> str:
+def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, beyond: bool = False, *,
+           actuator: bool = False) -> str:
     """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the runs show what no
     vocabulary effect flies (``beyond``: steps that hunt, cycles that wander or ring), else by the base model's
     gap and the identification."""
@@ -538,7 +553,7 @@ def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, bey
         return "named"
     if beyond:
         return "unexplained"
-    if gap_before <= NONE_GAP[family(loop)]:
+    if gap_before <= NONE_GAP[floors_of(loop, actuator)]:
         return "absorbed" if absorbed else "none"
     return "unexplained"
 
@@ -661,6 +676,7 @@ def analyse(
     if source == "identified" and (ident.get("oscillation") or {}).get("period"):
         anchor_hz = 1.0 / float(ident["oscillation"]["period"])
         anchor_h = next((float(r.spec.h) for r in session.runs if r.spec.file == ident.get("run") and r.spec.h), 0.0)
+    ranged = session.actuator is not None
     while True:
         cands = tuple(c for c in candidates if c not in {e.name for e in cur.effects})
         if not cands:
@@ -678,7 +694,7 @@ def analyse(
                 smoother_sensor=source == "identified",
                 phase_anchor_hz=anchor_hz,
                 phase_anchor_h=anchor_h,
-                credit=clean_credit(session.loop) if source == "identified" else None,
+                credit=clean_credit(session.loop, actuator=ranged) if source == "identified" else None,
                 read_staircase=source == "identified",
                 log=log,
             )
@@ -700,7 +716,7 @@ def analyse(
         if res.effect != "none" and len(found) >= max_effects:
             res = declined(res, cur_model)  # the level's noise took the last place
         if res.effect != "none" and not accepts(res.gap_before, res.gap_after, session.loop, source == "identified",
-                                                res.effect):
+                                                res.effect, actuator=ranged):
             log(f"search {len(steps) + 1}: {res.effect} {res.params} leaves {res.gap_after:.3f} of "
                 f"{res.gap_before:.3f}: not enough to name it")  # fmt: skip
             res = declined(res, cur_model)
@@ -729,7 +745,8 @@ def analyse(
             residual["summary"] = sign["summary"] + "; " + residual["summary"]
             log(sign["summary"])
     absorbed = absorbed_by(ident) if source == "identified" else None
-    answer = decide(bool(found), gap_before, session.loop, absorbed, beyond=any(v is not None for v in beyond.values()))
+    answer = decide(bool(found), gap_before, session.loop, absorbed, beyond=any(v is not None for v in beyond.values()),
+                    actuator=ranged)
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
@@ -782,7 +799,7 @@ def format_flow(flow: FlowResult) -> str:
     )
     if (
         flow.answer in ("unexplained", "named")
-        or flow.gap_after > NONE_GAP[family(flow.session.loop)]
+        or flow.gap_after > NONE_GAP[floors_of(flow.session.loop, flow.session.actuator is not None)]
     ):
         lines.append("residual: " + flow.residual["summary"])
     for i, s in enumerate(flow.steps, 1):

@@ -88,7 +88,7 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "from_samples": [d["name"] for d in j["from_samples"]],
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
-                "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
+                "actuator": session.actuator is not None, "absorbed": flow.absorbed, "dropped": flow.dropped, "residual": flow.residual["summary"],
                 **{k: flow.residual.get(k) for k in BEYOND}, "third_rise": flow.residual.get("third_rise"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
                 "ranking": [(r["effect"], round(r["gap"], 3)) for r in flow.steps[0].ranking[:4]],
@@ -109,7 +109,7 @@ def redecide(r: dict) -> dict:
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
     answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
-                    beyond=any(bool(r.get(k)) for k in BEYOND))
+                    beyond=any(bool(r.get(k)) for k in BEYOND), actuator=bool(r.get("actuator")))
     t = truth_of(r)
     return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
 
