@@ -822,14 +822,18 @@ def _parse_top(doc: dict, where: str) -> tuple[str, str, float, dict | None, lis
     return doc["format"], loop, rate, model, runs, effects
 
 
-def _parse_model(table: dict, loop: str, toml: str) -> ModelSpec:
-    where = f"{toml}: [model]"
+def _check_keys(table: dict, where: str, known: tuple[str, ...], required: tuple[str, ...]) -> None:
     for key in table:
-        if key not in _MODEL_KEYS:
-            raise _unknown_key(where, key, _MODEL_KEYS)
-    for key in _MODEL_REQUIRED:
+        if key not in known:
+            raise _unknown_key(where, key, known)
+    for key in required:
         if key not in table:
             raise SessionError(f"{where}: missing key {key!r}")
+
+
+def _parse_model(table: dict, loop: str, toml: str) -> ModelSpec:
+    where = f"{toml}: [model]"
+    _check_keys(table, where, _MODEL_KEYS, _MODEL_REQUIRED)
     values = {k: _number(v, k, where) for k, v in table.items()}
     model = ModelSpec(**values)
     validate_model(model, loop, where)
@@ -840,12 +844,7 @@ def _parse_actuator(table: Any, toml: str) -> ActuatorSpec:
     where = f"{toml}: [actuator]"
     if not isinstance(table, dict):
         raise SessionError(f"{toml}: actuator must be a table ([actuator]), got {_type_name(table)} {_short(table)}")
-    for key in table:
-        if key not in _ACTUATOR_KEYS:
-            raise _unknown_key(where, key, _ACTUATOR_KEYS)
-    for key in _ACTUATOR_KEYS:
-        if key not in table:
-            raise SessionError(f"{where}: missing key {key!r}")
+    _check_keys(table, where, _ACTUATOR_KEYS, _ACTUATOR_KEYS)
     actuator = ActuatorSpec(**{k: _number(table[k], k, where) for k in _ACTUATOR_KEYS})
     validate_actuator(actuator, where)
     return actuator
