@@ -45,7 +45,8 @@
    (:func:`uavsim.gap.workflow.read_off_relays`).
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
-   clean sessions of the testbed vehicle, development seeds), ``absorbed``
+   clean sessions of the testbed vehicle, development seeds; a session that states
+   its actuators' range has floors of its own, :func:`floors_of`), ``absorbed``
    when it is and the identified (refitted) model shows a phase lag at the
    cycle beyond its class's (a linear delay, lag or low-pass moved ``tau`` or
    the lags: reported with the move), else ``unexplained`` with the residual's character
