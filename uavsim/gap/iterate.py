@@ -164,13 +164,11 @@ CLEAN_REMOVAL: dict[str, dict[str, float]] = {
                  "quantization": 0.04, "rate_limit": 0.78, "saturation": 0.8},
     "attitude": {"bias": 0.06, "dead_zone": 0.03, "delay": 0.01, "gain": 0.15, "lag": 0.23, "noise": 0.28,
                  "rate_limit": 0.74, "saturation": 0.55},
+    "altitude+actuator": {"bias": 0.2, "dead_zone": 0.28, "delay": 0.44, "gain": 0.55, "lag": 0.54, "lowpass": 0.67,
+                          "noise": 0.68, "quantization": 0.46, "rate_limit": 0.46, "saturation": 0.31},
+    "attitude+actuator": {"bias": 0.2, "dead_zone": 0.29, "delay": 0.37, "gain": 0.51, "lag": 0.36, "lowpass": 0.21,
+                          "noise": 0.76, "rate_limit": 0.68, "saturation": 0.76},
 }  # fmt: skip
-CLEAN_REMOVAL["altitude+actuator"] = {
-    "bias": 0.2, "dead_zone": 0.28, "delay": 0.44, "gain": 0.55, "lag": 0.54, "lowpass": 0.67, "noise": 0.68,
-    "quantization": 0.46, "rate_limit": 0.46, "saturation": 0.31}  # fmt: skip
-CLEAN_REMOVAL["attitude+actuator"] = {
-    "bias": 0.2, "dead_zone": 0.29, "delay": 0.37, "gain": 0.51, "lag": 0.36, "lowpass": 0.21, "noise": 0.76,
-    "rate_limit": 0.68, "saturation": 0.76}  # fmt: skip
 #: an identified session's effect is named when it removes at least this share of the squared gap
 #: beyond a clean session's, itself credited with what it removes from a clean one (the share
 #: NAME_SHARE asks of a model without misfit)
