@@ -99,3 +99,18 @@ def test_record_says_which_run_identified_the_base_and_whether_the_duty_check_wa
     ident = score.one(folder, None, "identified", 0)["identification"]
     assert ident["run"] == "r1.csv" and ident["duty_check"] is False
     assert ident["refused_runs"] == ["r0.csv: relay duty 0.64 over the cycle"] and "n_cycles_internal" not in ident
+
+
+def test_a_pair_counts_its_absorbable_member_as_a_single_does():
+    t = {"kind": "pair", "effects": [{"name": "sample_hold", "params": {}}, {"name": "delay", "params": {}}]}
+    r = score.score(t, "named", [{"name": "sample_hold"}], 10.0, 3.0)
+    assert r["ok"] and not r["both_named"] and r["one_of_two"]
+    assert score.score(t, "named", [{"name": "sample_hold"}, {"name": "delay"}], 10.0, 2.0)["both_named"]
+    # the member a linear model cannot take in must be named, and nothing beside the two
+    assert not score.score(t, "named", [{"name": "delay"}], 10.0, 3.0)["ok"]
+    assert not score.score(t, "none", [], 10.0, 10.0)["ok"]
+    assert not score.score(t, "named", [{"name": "sample_hold"}, {"name": "bias"}], 10.0, 2.0)["ok"]
+    both_linear = {"kind": "pair", "effects": [{"name": "gain", "params": {}}, {"name": "lowpass", "params": {}}]}
+    assert score.score(both_linear, "none", [], 5.0, 5.0)["ok"]
+    assert score.score(both_linear, "absorbed", [], 5.0, 5.0)["ok"]
+    assert not score.score(both_linear, "unexplained", [], 5.0, 5.0)["ok"]
