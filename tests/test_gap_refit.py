@@ -124,3 +124,15 @@ def test_analyse_screens_the_class_starts_only_when_asked(monkeypatch, clean):
     assert seen == [None]
     flow = iterate.analyse(s, candidates=("gain",), max_effects=1, nthread=1, screen=True)
     assert seen[-1] == [clean.model] and flow.identification["refit"]["screened"]["start"] == 0
+
+
+def test_refit_starts_on_the_k_t1_ridge_where_it_flies_best(clean):
+    """A start with K and T1 both halved has the truth's gain at the cycle; the ridge screen finds the
+    factor the steps ask for, which a search of one batch from the start does not reach."""
+    true = clean.model
+    half = dataclasses.replace(true, K=0.5 * true.K, T1=0.5 * true.T1)
+    on = refit_base(clean, half, seed=6, nthread=1, iterations=1, ridge=(0.5, 2.0))
+    off = refit_base(clean, half, seed=6, nthread=1, iterations=1, ridge=())
+    assert on.accepted and on.model.T1 == pytest.approx(true.T1, rel=0.25)
+    assert abs(on.model.T1 / true.T1 - 1) < abs(off.model.T1 / true.T1 - 1)
+    assert on.gap_after < off.gap_after
