@@ -28,6 +28,9 @@ with the identified model (:data:`SCREEN_SEEDS` noise seeds each) and scored on 
 scales; the search then moves around that start, and its result is still kept only when it
 beats the identified model.
 
+``ridge`` screens the start with ``K`` and ``T1`` multiplied together (the same gain at the cycle,
+which one cycle cannot place along that line) before the search; off by default (:data:`RIDGE`).
+
 A refit also takes in what a linear model can: a delay, a lag, a low-pass or
 a gain moves ``tau`` or ``K``. :class:`RefitResult` keeps the moves, and
 :func:`uavsim.gap.iterate.absorbed_by` reads them.
@@ -247,6 +250,8 @@ def refit_base(
             log(f"refit starts from screened start {j - 1} of {len(starts)}: gap {g[0]:.3f} -> {g[j]:.3f} "
                 f"(T_prop {pts[j].T_prop:.4g} s, T1 {pts[j].T1:.4g} s, tau {pts[j].tau * 1e3:.1f} ms)")
     ridge = RIDGE if ridge is None else ridge
+    if any(f <= 0 for f in ridge):
+        raise ValueError(f"ridge factors must be > 0, got {ridge}")
     if ridge:
         d = np.zeros(len(PARAMS))
         d[PARAMS.index("K")] = d[PARAMS.index("T1")] = 1.0
