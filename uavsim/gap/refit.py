@@ -179,6 +179,18 @@ def _gaps(ev: GapEvaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
     return np.array(g).reshape(len(points), seeds).mean(axis=1)
 
 
+def _screen(ev: GapEvaluator, points: list[ModelSpec], seeds: int) -> np.ndarray:
+    """:func:`_gaps` of ``points`` without using up the evaluator's noise draws.
+
+    The search then draws the noise it would have drawn without the screen: where a screen keeps
+    the start, the refit is the one it was.
+    """
+    calls = ev.calls
+    g = _gaps(ev, points, seeds)
+    ev.calls = calls
+    return g
+
+
 def refit_base(
     session: Session,
     model: ModelSpec,
@@ -237,11 +249,7 @@ def refit_base(
     xs = x0
     if starts:
         pts = [model] + [dataclasses.replace(model, K=s.K, T_prop=s.T_prop, T1=s.T1, tau=s.tau) for s in starts]
-        calls = ev.calls
-        g = _gaps(ev, pts, SCREEN_SEEDS)
-        # the search draws the noise it drew without the screen: where the screen keeps the model, the refit is
-        # the one it was
-        ev.calls = calls
+        g = _screen(ev, pts, SCREEN_SEEDS)
         episodes += len(pts) * SCREEN_SEEDS * R
         j = int(np.argmin(g))
         screened = {"start": j - 1, "gap": float(g[j]), "model_gap": float(g[0]), "n": len(starts)}
@@ -256,9 +264,7 @@ def refit_base(
         d = np.zeros(len(PARAMS))
         d[PARAMS.index("K")] = d[PARAMS.index("T1")] = 1.0
         xr = [xs] + [xs + math.log(f) * d for f in ridge]
-        calls = ev.calls
-        g = _gaps(ev, [_to_model(model, x) for x in xr], SEEDS)
-        ev.calls = calls
+        g = _screen(ev, [_to_model(model, x) for x in xr], SEEDS)
         episodes += len(xr) * SEEDS * R
         j = int(np.argmin(g))
         if j > 0:
