@@ -378,6 +378,32 @@ def test_identified_naming_needs_a_gap_beyond_a_clean_sessions(monkeypatch):
     assert iterate.excess_share(2.5, 1.0, "lag", "pitch") == 0.0  # within a clean gap: nothing beyond it
 
 
+def test_phase_freed_model_flies_the_identified_cycle_with_the_hold_in_the_loop():
+    from uavsim.lumped.frequency import unwrapped_phase_batch
+
+    f, rate = 1.5, 200.0
+    w = 2 * math.pi * f
+    ident = ModelSpec(K=0.6, T_prop=0.11, T1=0.5, tau=0.014, noise_std=1e-4)
+
+    def lag(m: ModelSpec) -> float:
+        return -float(unwrapped_phase_batch("attitude", np.array([w]), T_prop=m.T_prop, T1=m.T1, tau=m.tau)[0, 0])
+
+    def gain(m: ModelSpec) -> float:
+        return m.K / (w * math.hypot(1, w * m.T_prop) * math.hypot(1, w * m.T1))
+
+    for hold_hz in (60.0, 13.0):  # a short hold comes out of tau alone; a long one takes T_prop too
+        hold = [EffectSpec("sample_hold", {"rate_hz": hold_hz})]
+        m = iterate.phase_freed(ident, hold, f, rate_hz=rate)
+        extra = w * 0.5 * (1 / hold_hz - 1 / rate)
+        assert lag(m) + extra == pytest.approx(lag(ident), rel=1e-9)  # the same cycle with the hold flown
+        assert gain(m) == pytest.approx(gain(ident), rel=1e-9)
+        assert m.T1 == ident.T1 and m.noise_std == ident.noise_std
+    assert iterate.phase_freed(ident, [EffectSpec("sample_hold", {"rate_hz": 60.0})], f, rate_hz=rate).T_prop == ident.T_prop
+    assert iterate.phase_freed(ident, [EffectSpec("sample_hold", {"rate_hz": 13.0})], f, rate_hz=rate).tau == 0.0
+    # effects with no phase of their own (a quantizer, a saturation) leave the model as it is
+    assert iterate.phase_freed(ident, [EffectSpec("quantization", {"step": 0.01})], f) is ident
+
+
 def test_credited_gap_adds_in_squares():
     from uavsim.gap.workflow import credited_gap
 

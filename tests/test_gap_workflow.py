@@ -280,6 +280,22 @@ def test_lag_like_candidates_and_a_rate_limit_take_their_phase_out_of_tau():
     assert ev.tau_shift("rate_limit", 40.0) == 0.0  # no relay amplitude given: no phase
 
 
+def test_a_frame_hold_takes_its_half_frame_beyond_the_control_rates_out_of_tau():
+    from uavsim.gap.workflow import GapEvaluator, candidate_phase
+
+    f = 2.0
+    # half a frame's delay as against the unheld signal; a loop at 200 Hz already holds half a control period
+    assert candidate_phase("sample_hold", 20.0, f) == pytest.approx(2 * math.pi * f * 0.5 / 20.0)
+    assert candidate_phase("sample_hold", 20.0, f, rate_hz=200.0) == pytest.approx(
+        2 * math.pi * f * 0.5 * (1 / 20.0 - 1 / 200.0))
+    assert candidate_phase("sample_hold", 200.0, f, rate_hz=200.0) == 0.0  # its identity holds nothing
+    session, _ = hidden_session(3, effect="none")
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.05, noise_std=0.0)
+    ev = GapEvaluator(session, model, {}, 0, 1, 0.001, anchor_hz=f)
+    rate = session.control_rate_hz
+    assert ev.tau_shift("sample_hold", 20.0) == pytest.approx(0.5 * (1 / 20.0 - 1 / rate))
+
+
 def test_simulated_step_runs_follow_their_derivative():
     # the gap workflow's simulation flies each step run's own PD: the error form kicks the
     # command on the step sample, the measurement form sends kp e there (the output is at rest)

@@ -117,6 +117,7 @@ __all__ = [
     "absorbed_by",
     "identify_base",
     "class_starts",
+    "phase_freed",
     "cycle_response",
     "live_runs",
     "format_flow",
@@ -447,6 +448,30 @@ def class_starts(ident: dict, model: ModelSpec) -> list[ModelSpec]:
                                 T1=float(m["T1"][k]), tau=float(m["tau"][k])) for k in np.flatnonzero(ok)]
 
 
+def phase_freed(model: ModelSpec, effects: list[EffectSpec], freq_hz: float, *, h: float = 0.0,
+                rate_hz: float | None = None) -> ModelSpec:
+    """``model`` with the phase that ``effects`` add to a cycle at ``freq_hz`` taken out of its lags.
+
+    An identified model put that phase (a frame hold's half frame, a lag) into its ``tau`` and, where a
+    delay could not hold it all, into ``T_prop``: the phase comes out of ``tau`` first (down to 0), the
+    rest out of ``T_prop``, whose gain at the cycle ``K`` keeps; the model flies the same cycle with
+    the effects in the loop. Effects without a phase leave it as it is.
+    """
+    from uavsim.gap.workflow import candidate_phase
+
+    w = 2 * math.pi * freq_hz
+    phase = sum(candidate_phase(e.name, float(next(iter(e.params.values()))), freq_hz, h, rate_hz) for e in effects)
+    if phase <= 0:
+        return model
+    cut = min(phase / w, float(model.tau))
+    rest = phase - cut * w
+    if rest <= 0:
+        return dataclasses.replace(model, tau=float(model.tau) - cut)
+    t_prop = max(math.tan(max(math.atan(w * model.T_prop) - rest, 0.0)) / w, 1e-4)
+    k = model.K * math.hypot(1.0, w * t_prop) / math.hypot(1.0, w * model.T_prop)
+    return dataclasses.replace(model, K=k, T_prop=t_prop, tau=0.0)
+
+
 def _phase_lag(p: dict, w: float) -> float:
     """Phase lag, rad, of the inner-loop lumped model ``p`` (``T_prop``, ``T1``, ``tau``) at ``w`` rad/s."""
     return -float(unwrapped_phase_batch("attitude", np.array([w]), **{k: float(p[k]) for k in ("T_prop", "T1", "tau")})[0, 0])
@@ -631,6 +656,11 @@ def analyse(
         log(
             f"run {f} dropped: the measurement holds no analysable cycle (the relay lost its oscillation)"
         )
+    # an identified model's tau holds the phase of its relay cycle: lag-like candidates take theirs out of it
+    anchor_hz, anchor_h = None, 0.0
+    if source == "identified" and (ident.get("oscillation") or {}).get("period"):
+        anchor_hz = 1.0 / float(ident["oscillation"]["period"])
+        anchor_h = next((float(r.spec.h) for r in session.runs if r.spec.file == ident.get("run") and r.spec.h), 0.0)
     found: list[EffectSpec] = []
     from_samples: list[dict] = []
     gap_without, sims_without = None, []
@@ -649,7 +679,13 @@ def analyse(
             # its cause in the loop, it moves to the vehicle's lumped model, where a gap search from the model
             # without it drifts off the cause or finds nothing the refit has not already bent into the model
             with_it = dataclasses.replace(live, effects=list(live.effects) + shown)
-            fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts)
+            starts_s = starts
+            if anchor_hz:
+                # a hold's half frame sits in the identified lags: the refit also starts with it taken out
+                freed = phase_freed(model, shown, anchor_hz, h=anchor_h, rate_hz=live.control_rate_hz)
+                if freed != model:
+                    starts_s = [*(starts or []), freed]
+            fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts_s)
             what = READ_FROM[evidence]
             if fit_s.gap < fit.gap:
                 # the report's "before" is the base model without the effect, as the gap before is
@@ -678,11 +714,6 @@ def analyse(
             "without a noise source stay under; the gap cannot show it (the model carries it)")
         found.append(by_level)
         candidates = tuple(c for c in candidates if c != "noise")
-    # an identified model's tau holds the phase of its relay cycle: lag-like candidates take theirs out of it
-    anchor_hz, anchor_h = None, 0.0
-    if source == "identified" and (ident.get("oscillation") or {}).get("period"):
-        anchor_hz = 1.0 / float(ident["oscillation"]["period"])
-        anchor_h = next((float(r.spec.h) for r in session.runs if r.spec.file == ident.get("run") and r.spec.h), 0.0)
     ranged = session.actuator is not None
     while True:
         cands = tuple(c for c in candidates if c not in {e.name for e in cur.effects})

@@ -16,8 +16,8 @@
    value is refined by a parabola through the three best grid points (in the
    parameter's log). Each candidate's score is its remaining gap plus a
    complexity penalty of :data:`PENALTY` per parameter. With an identified
-   model (``phase_anchor_hz``, ``phase_anchor_h``), lag-like candidates (and a
-   rate limit, whose phase depends on the relay's amplitude) take the phase they add at
+   model (``phase_anchor_hz``, ``phase_anchor_h``), lag-like candidates (a frame
+   hold's half frame, and a rate limit, whose phase depends on the relay's amplitude) take the phase they add at
    the identified cycle out of its ``tau``; with ``credit`` (what each
    candidate already removes from a clean session), the gap a candidate
    leaves is first given back that much (:func:`credited_gap`).
@@ -98,11 +98,19 @@ def credited_gap(name: str, gap: float, credit: dict[str, float] | None) -> floa
     return math.sqrt(gap * gap + extra) if extra > 0 else gap
 
 
-def candidate_phase(name: str, value: float, freq_hz: float, h: float = 0.0) -> float:
+def candidate_phase(name: str, value: float, freq_hz: float, h: float = 0.0, rate_hz: float | None = None) -> float:
     """Phase lag, rad, that candidate ``name`` = ``value`` adds to a relay cycle at ``freq_hz`` whose relay
-    swings +-``h`` (its vocabulary term's ``phase``; 0 for effects without one and for the bare model, ``none``)."""
-    phase = vocabulary.term(name).phase if name in vocabulary.names() else None
-    return 0.0 if phase is None else float(phase(value, freq_hz, h))
+    swings +-``h`` (its vocabulary term's ``phase``; 0 for effects without one and for the bare model, ``none``).
+
+    A rate effect (a frame hold) is taken against its identity, the control rate ``rate_hz``: a loop
+    sampled at that rate already has the phase of a hold at it."""
+    term = vocabulary.term(name) if name in vocabulary.names() else None
+    if term is None or term.phase is None:
+        return 0.0
+    phase = float(term.phase(value, freq_hz, h))
+    if term.identity_is_rate and rate_hz:
+        phase = max(phase - float(term.phase(rate_hz, freq_hz, h)), 0.0)
+    return phase
 
 
 class UnflownRun(UserError):
@@ -476,7 +484,8 @@ class GapEvaluator:
         if not self.anchor_hz:
             return 0.0
         w = 2 * math.pi * self.anchor_hz
-        return min(candidate_phase(name, value, self.anchor_hz, self.anchor_h) / w, float(self.model.tau))
+        phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
+        return min(phase / w, float(self.model.tau))
 
     def features(self, sims: list[SimRun]) -> list[dict | None]:
         return [run_features(r.spec, s.t, s.y, s.u) for r, s in zip(self.session.runs, sims, strict=True)]
@@ -589,7 +598,7 @@ def run_gap(
     phase_anchor_hz : float, optional
         Frequency at which the model's ``tau`` was fitted to a measured cycle
         (an identified model: the relay run's): candidates whose vocabulary term has a ``phase``
-        (``lag``, ``lowpass``, ``rate_limit``) take their phase there out of ``tau`` (down to 0),
+        (``lag``, ``lowpass``, ``rate_limit``, ``sample_hold``) take their phase there out of ``tau`` (down to 0),
         so that the model keeps the measured phase and only the candidate's shape is
         tested; a winner's result carries the model with the shorter ``tau``.
     phase_anchor_h : float

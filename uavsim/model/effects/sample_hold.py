@@ -16,6 +16,13 @@ from uavsim.model.effects.base import (
 )
 
 
+def _phase(rate_hz: float, freq_hz: float, h: float) -> float:
+    """Phase lag, rad, of a cycle at ``freq_hz`` through a hold of ``rate_hz`` frames: half a frame's delay on
+    average (as against the unheld signal; a loop sampled at the control rate already holds half a control
+    period of it, :func:`uavsim.gap.workflow.candidate_phase` takes that off)."""
+    return math.pi * freq_hz / rate_hz
+
+
 def _draw(rng, period, h, amp, noise_std, rate_hz):
     lo, hi = 15.0, min(0.5 * rate_hz, 1.0 / (0.03 * period))
     return {"rate_hz": float(math.exp(rng.uniform(math.log(lo), math.log(max(hi, lo * 1.01)))))}
@@ -40,6 +47,7 @@ class SampleHold(SignalEffect):
         draw=_draw,
         cap=lambda rate_hz: rate_hz,  # a frame rate above the control rate holds nothing
         identity_is_rate=True,
+        phase=_phase,
     )
     target = "measurement"
 
