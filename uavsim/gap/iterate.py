@@ -76,6 +76,7 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import (
+    EFFECT_PARAMS,
     NP_MRFT_RUN,
     RELAY_KINDS,
     STEP_RUN,
@@ -101,6 +102,7 @@ from uavsim.gap.workflow import (
     GapResult,
     UnflownRun,
     base_effects,
+    candidate_phase,
     credited_gap,
     data_hints,
     format_table,
@@ -457,10 +459,8 @@ def phase_freed(model: ModelSpec, effects: list[EffectSpec], freq_hz: float, *, 
     rest out of ``T_prop``, whose gain at the cycle ``K`` keeps; the model flies the same cycle with
     the effects in the loop. Effects without a phase leave it as it is.
     """
-    from uavsim.gap.workflow import candidate_phase
-
     w = 2 * math.pi * freq_hz
-    phase = sum(candidate_phase(e.name, float(next(iter(e.params.values()))), freq_hz, h, rate_hz) for e in effects)
+    phase = sum(candidate_phase(e.name, float(e.params[EFFECT_PARAMS[e.name][0]]), freq_hz, h, rate_hz) for e in effects)
     if phase <= 0:
         return model
     cut = min(phase / w, float(model.tau))

@@ -68,7 +68,7 @@ from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
-           "credited_gap", "read_model_file", "candidate_grid", "read_off_relays", "step_hunting"]
+           "credited_gap", "read_model_file", "candidate_grid", "candidate_phase", "read_off_relays", "step_hunting"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
