@@ -508,6 +508,24 @@ def test_staircase_cause_read_off_the_samples_is_named_when_the_base_model_flies
     assert b is not flow.steps[0].sims_before[0] and np.mean(b.y[1:] == b.y[:-1]) < 0.2
 
 
+def test_the_staircases_refit_flies_the_model_noise_of_the_colour_screened_with_it(monkeypatch):
+    from uavsim.gap.colour import ColourResult
+
+    _script(monkeypatch, [("none", 3.0, 3.0)])
+    starts = {}
+    monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 20.0, ("sample_hold",): 3.0}, starts))
+    screened = []
+    monkeypatch.setattr(iterate, "noise_colour", lambda s, m, **kw: screened.append([e.name for e in s.effects])
+                        or ColourResult(3.0, {"white": 9.0, "3": 3.1}))  # fmt: skip
+    msgs = []
+    flow = iterate.analyse(_identified(monkeypatch, 0.01, staircase=True), log=msgs.append)
+    # screened with the hold in the loop; the refit without it keeps white noise, the one with it is coloured
+    assert screened == [["sample_hold"]]
+    assert starts[()].noise_corner_hz is None and starts[("sample_hold",)].noise_corner_hz == 3.0
+    assert flow.base.noise_corner_hz == 3.0 and flow.identification["noise_colour"]["corner_hz"] == 3.0
+    assert any("low-pass at 3 Hz" in m for m in msgs) and "low-passed at 3 Hz" in iterate.format_flow(flow)
+
+
 def test_staircase_cause_is_not_named_when_the_model_flies_no_better_with_it(monkeypatch):
     calls = _script(monkeypatch, [("none", 3.0, 3.0)])
     monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 3.0, ("sample_hold",): 3.5}))

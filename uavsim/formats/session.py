@@ -134,7 +134,7 @@ _RUN_PARAMS = (
 _RUN_ALL_KEYS = ("file", "kind", *_RUN_PARAMS)
 _TOP_KEYS = ("format", "loop", "control_rate_hz", "model", "actuator", "runs", "effects")
 _ACTUATOR_KEYS = ("command_min", "command_max")
-_MODEL_KEYS = ("K", "T_prop", "T1", "T2", "tau", "noise_std")
+_MODEL_KEYS = ("K", "T_prop", "T1", "T2", "tau", "noise_std", "noise_corner_hz")
 _MODEL_REQUIRED = ("K", "T_prop", "T1", "tau")
 
 # Tolerance on the CSV time step: clocks on flight computers jitter a little
@@ -175,6 +175,8 @@ class ModelSpec:
         Second body time constant, s; lateral loops only (None otherwise).
     noise_std : float
         Measurement noise standard deviation the model assumes, output units.
+    noise_corner_hz : float or None
+        Corner of the 2nd-order Butterworth low-pass that colours that noise, Hz; None: white.
     """
 
     K: float
@@ -183,6 +185,7 @@ class ModelSpec:
     tau: float
     T2: float | None = None
     noise_std: float = 0.0
+    noise_corner_hz: float | None = None
 
 
 @dataclass
@@ -517,6 +520,8 @@ def validate_model(model: ModelSpec, loop: str, where: str) -> None:
                 )
             if value is None:
                 continue
+        if name == "noise_corner_hz" and value is None:
+            continue
         if value is None and name in _MODEL_REQUIRED:
             raise SessionError(f"{where}: missing key {name!r}")
         values[name] = _number(value, name, where)
@@ -527,6 +532,8 @@ def validate_model(model: ModelSpec, loop: str, where: str) -> None:
             _check_range(values[name], name, where, ">0")
     _check_range(values["tau"], "tau", where, ">=0")
     _check_range(values["noise_std"], "noise_std", where, ">=0")
+    if "noise_corner_hz" in values:
+        _check_range(values["noise_corner_hz"], "noise_corner_hz", where, ">0")
 
 
 def validate_effect(effect: EffectSpec, where: str) -> None:
@@ -1045,6 +1052,8 @@ def _session_toml(session: Session) -> str:
         if m.T2 is not None:
             pairs.append(("T2", m.T2))
         pairs += [("tau", m.tau), ("noise_std", m.noise_std)]
+        if m.noise_corner_hz is not None:
+            pairs.append(("noise_corner_hz", m.noise_corner_hz))
         lines += ["", "[model]", *_toml_lines(pairs)]
     a = session.actuator
     if a is not None:

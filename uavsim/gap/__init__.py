@@ -17,7 +17,8 @@ registry effects for batched fits),
 :mod:`~uavsim.gap.iterate` (what ``uavsim gap`` runs: base model identified
 when the session has none, effects added one by one, ``none`` / ``absorbed`` /
 ``unexplained``), :mod:`~uavsim.gap.residual` (the residual's character),
-:mod:`~uavsim.gap.overlay` (the report's overlays and ranking).
+:mod:`~uavsim.gap.overlay` (the report's overlays and ranking),
+:mod:`~uavsim.gap.colour` (the model noise's colour where the samples are a staircase).
 
     from uavsim.formats import read_session
     from uavsim.gap import run_gap, format_table, write_report

@@ -99,7 +99,18 @@ def _resid_features(x: np.ndarray, resid: np.ndarray, scale: float) -> dict[str,
     med = np.median(d2)
     mad = 1.4826 * float(np.median(np.abs(d2 - med)))
     sd = mad / math.sqrt(6.0)
-    c = np.clip(d2 - med, -5 * mad - 1e-300, 5 * mad + 1e-300)
+    # rounding of the mean cycle's interpolation leaves ~1e-17 where a staircase is flat
+    moving = np.abs(d2) > 1e-9 * scale
+    if 0 < moving.sum() < d2.size:
+        # a staircase (quantized or held samples) has flat stretches, which noise never gives: once they
+        # are half the samples the MAD drops to zero, a jump of ~15 in log that a few more repeated
+        # samples make. The level of the moving samples, weighted by their share, is the same level
+        # without zeros and falls smoothly as the stairs lengthen
+        dm = d2[moving]
+        share = float(moving.mean())
+        sd = 1.4826 * float(np.median(np.abs(dm - np.median(dm)))) * math.sqrt(share) / math.sqrt(6.0)
+    spread = sd * math.sqrt(6.0)  # the MAD, or the staircase's level of its moving samples
+    c = np.clip(d2 - med, -5 * spread - 1e-300, 5 * spread + 1e-300)
     c = c - c.mean()
     ac1 = float(np.dot(c[1:], c[:-1]) / max(np.dot(c, c), 1e-300))
     rep = float(np.mean(x[1:] == x[:-1])) if x.size > 1 else 0.0

@@ -38,7 +38,9 @@
    frames: :func:`uavsim.gap.workflow.read_off_samples`) names that cause with the
    parameter read off the samples, when the base model refitted with it in the loop
    flies the runs better than the one refitted without; that refit is the base model
-   of the search, and the gap before is the one without. Without a staircase, two
+   of the search, and the gap before is the one without. Before that refit the model's
+   noise takes the colour that flies the staircase best (:func:`uavsim.gap.colour.noise_colour`:
+   a filtered sensor's noise, quantized or held, stays on a level where white noise hops). Without a staircase, two
    relay runs of one ``beta`` whose cycles grow less than their ``h`` does, beyond what
    the base model flies, read a saturation with its limit the same way; cycles that grow
    more, with step runs that settle as the model's do, read a dead zone with its width
@@ -85,6 +87,7 @@ from uavsim.formats.session import (
     Session,
     write_session,
 )
+from uavsim.gap.colour import noise_colour
 from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
 from uavsim.gap.residual import (
@@ -685,13 +688,20 @@ def analyse(
                 freed = phase_freed(model, shown, anchor_hz, h=anchor_h, rate_hz=live.control_rate_hz)
                 if freed != model:
                     starts_s = [*(starts or []), freed]
-            fit_s = refit_base(with_it, model, seed=seed, nthread=nthread, log=log, starts=starts_s)
+            # a sensor's filtered noise, quantized or held, stays on a level where white noise hops
+            colour = noise_colour(with_it, model, seed=seed, nthread=nthread)
+            if colour.corner_hz is not None:
+                log(f"model noise coloured with the staircase: low-pass at {colour.corner_hz:g} Hz (gap "
+                    + ", ".join(f"{k} {v:.3f}" for k, v in colour.gaps.items()) + ")")
+            fit_s = refit_base(with_it, dataclasses.replace(model, noise_corner_hz=colour.corner_hz), seed=seed,
+                               nthread=nthread, log=log, starts=starts_s)
             what = READ_FROM[evidence]
             if fit_s.gap < fit.gap:
                 # the report's "before" is the base model without the effect, as the gap before is
                 sims_without = (flown or without.sims([("none", 0.0)]))[0]
                 gap_without, fit = fit.gap, fit_s
                 ident["refit"] = fit.to_json()
+                ident["noise_colour"] = colour.to_json()
                 found += shown
                 live = with_it
                 for e in shown:
@@ -800,7 +810,8 @@ def format_flow(flow: FlowResult) -> str:
     """Readable summary: base model, answer, each search's table, what is left."""
     b = flow.base
     lines = [f"base model ({flow.base_source}): K {b.K:.4g}, T_prop {b.T_prop:.4g} s, T1 {b.T1:.4g} s, "
-             f"tau {b.tau * 1e3:.1f} ms, noise std {b.noise_std:.3g}"]  # fmt: skip
+             f"tau {b.tau * 1e3:.1f} ms, noise std {b.noise_std:.3g}"
+             + ("" if b.noise_corner_hz is None else f" low-passed at {b.noise_corner_hz:g} Hz")]  # fmt: skip
     fit = (flow.identification or {}).get("refit")
     if fit:
         lines.append(f"refit on all runs: gap {fit['gap_before']:.3f} -> {fit['gap_after']:.3f} "

@@ -30,7 +30,7 @@ def model_toml(result: GapResult) -> str:
     """The updated model as TOML: the ``[model]`` table and one ``[[effects]]`` table per effect."""
     m = result.model
     lines = ["[model]"]
-    for k in ("K", "T_prop", "T1", "T2", "tau", "noise_std"):
+    for k in ("K", "T_prop", "T1", "T2", "tau", "noise_std", "noise_corner_hz"):
         v = getattr(m, k)
         if v is not None:
             lines.append(f"{k} = {float(v)!r}")

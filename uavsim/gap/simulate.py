@@ -33,6 +33,7 @@ from uavsim.errors import UserError
 from uavsim.formats.session import EFFECT_PARAMS, MRFT_RUN, STEP_RUN, ModelSpec, Run, Session
 from uavsim.lumped.params import LumpedParams
 from uavsim.model.effects import Effect, make_effect, vocabulary
+from uavsim.noise.models import ColouredNoise
 from uavsim.sim.runner import LoopBatch
 
 __all__ = ["Episode", "SimRun", "SessionController", "simulate", "batch_effects", "run_reference", "IDENTITY",
@@ -140,6 +141,7 @@ def batch_effects(
     noise_std: float | np.ndarray,
     rate_hz: float,
     base: dict[str, float] | None = None,
+    noise_corner_hz: float | None = None,
 ) -> list[Effect]:
     """Registry effects for a batch whose episode ``i`` has the effect ``names[i]`` at ``values[i]``.
 
@@ -160,6 +162,11 @@ def batch_effects(
     base : dict of str to float, optional
         Effects every episode has (the session's ``[[effects]]``), name -> value;
         an episode's own effect of the same name replaces it.
+    noise_corner_hz : float, optional
+        The model's noise is white noise low-passed at this corner (2nd-order Butterworth,
+        :class:`~uavsim.noise.models.ColouredNoise`) at the std ``noise_std``, where the
+        vocabulary's ``noise`` sits in the chain; an extra ``noise`` stays white beside it.
+        None: white, one draw with the extra noise.
 
     Returns
     -------
@@ -174,13 +181,18 @@ def batch_effects(
     for i, (name, v) in enumerate(zip(names, values, strict=True)):
         if name != "none":
             par[name][i] = float(v)
-    # one noise draw per sample, as the generator's model noise followed by an extra noise would give
-    par["noise"] = np.sqrt(np.broadcast_to(np.asarray(noise_std, dtype=np.float64), (n,)) ** 2 + par["noise"] ** 2)
-    return [
-        make_effect(name, **{EFFECT_PARAMS[name][0]: par[name]})
-        for name in identity
-        if np.any(par[name] != identity[name])  # effects no episode uses cost nothing
-    ]
+    std = np.broadcast_to(np.asarray(noise_std, dtype=np.float64), (n,))
+    coloured = noise_corner_hz is not None and np.any(std > 0)
+    if not coloured:
+        # one noise draw per sample, as the generator's model noise followed by an extra noise would give
+        par["noise"] = np.sqrt(std**2 + par["noise"] ** 2)
+    out: list[Effect] = []
+    for name in identity:
+        if name == "noise" and coloured:
+            out.append(ColouredNoise(std=np.array(std), high_hz=float(noise_corner_hz), order=2))
+        if np.any(par[name] != identity[name]):  # effects no episode uses cost nothing
+            out.append(make_effect(name, **{EFFECT_PARAMS[name][0]: par[name]}))
+    return out
 
 
 def model_params(session: Session, model: ModelSpec) -> LumpedParams:
@@ -240,7 +252,8 @@ def simulate(
     T = max(lens)
     names = [e.effect for e in plans]
     values = [e.value for e in plans]
-    fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects)
+    fx = batch_effects(names, values, float(model.noise_std), rate, base=base_effects,
+                       noise_corner_hz=model.noise_corner_hz)
     if session.actuator is not None:
         # the vehicle's ESCs clip whatever the command effects made of the controller's output
         fx.append(make_effect("actuator_range", low=session.actuator.command_min, high=session.actuator.command_max))

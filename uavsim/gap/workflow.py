@@ -197,7 +197,7 @@ def read_model_file(path: str | Path, loop: str) -> ModelSpec:
     where = str(p)
     doc = load_toml(p, "gap-model")  # keys, types and ranges (uavsim.schema.gap)
     table = doc.get("model", doc)
-    keys = ("K", "T_prop", "T1", "T2", "tau", "noise_std")
+    keys = ("K", "T_prop", "T1", "T2", "tau", "noise_std", "noise_corner_hz")
     model = ModelSpec(**{k: table.get(k) for k in keys if k in table})
     if model.noise_std is None:
         model.noise_std = 0.0

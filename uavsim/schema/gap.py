@@ -18,6 +18,7 @@ class GapModelFile(Table):
     T2: Positive | None = None
     tau: NonNegative | None = None
     noise_std: NonNegative | None = None
+    noise_corner_hz: Positive | None = None
 
     @model_validator(mode="after")
     def _one_place(self):

@@ -67,6 +67,8 @@ class Model(Table):
     T2: Positive | None = Field(default=None, description="second body time constant, s (lateral loops only)")
     tau: NonNegative = Field(description="total loop delay, s")
     noise_std: NonNegative = Field(default=0.0, description="measurement noise std, output units")
+    noise_corner_hz: Positive | None = Field(
+        default=None, description="corner of the 2nd-order low-pass colouring that noise, Hz; absent: white")
 
     @model_validator(mode="after")
     def _gain(self):

@@ -100,7 +100,8 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "rankings": [[(r["effect"], r["params"], round(r["gap"], 3)) for r in s.ranking] for s in flow.steps],
                 "identified": {k: j["base_model"][k] for k in ("K", "T_prop", "T1", "tau", "noise_std")},
                 "identification": ({k: flow.identification.get(k) for k in ("run", "refused_runs", "duty_check", "class",
-                                                                   "class_params", "params", "oscillation", "refit")}
+                                                                   "class_params", "params", "oscillation", "refit",
+                                                                   "noise_colour")}
                                    if flow.identification else None),
                 "seconds": time.perf_counter() - t0})  # fmt: skip
     rec.update(score(t, flow.answer, j["found"], flow.gap_before, flow.gap_after))
