@@ -105,6 +105,19 @@ def test_bias_named_and_fitted(tmp_path):
     assert 'name = "bias"' in (out / "model.toml").read_text()
 
 
+def test_a_winner_scored_on_its_grid_alone_is_verified_before_it_is_named(monkeypatch):
+    # with no candidate verified up front, the best one still wins only on fresh seeds (it used to
+    # be looked up among the verified ones and fail)
+    from uavsim.gap import workflow
+
+    session, truth = hidden_session(11, effect="bias", loop="roll")
+    monkeypatch.setattr(workflow, "VERIFY", 0)
+    r = run_gap(session, seed=1, candidates=("bias", "gain", "delay"), coarse=5, fine=5, name_ratio=0.8)
+    assert r.effect == "bias" and r.params["offset"] == pytest.approx(truth.params["offset"], rel=0.3)
+    ranked = {x["effect"]: x["gap"] for x in r.ranking}
+    assert r.gap_after <= ranked["bias"] and r.gap_after <= r.gap_before / 3
+
+
 def test_none_on_clean_session():
     session, _ = hidden_session(12, effect="none", loop="pitch")
     r = run_gap(session, seed=2, candidates=("delay", "gain"), coarse=4, fine=4)

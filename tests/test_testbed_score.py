@@ -114,3 +114,32 @@ def test_a_pair_counts_its_absorbable_member_as_a_single_does():
     assert score.score(both_linear, "none", [], 5.0, 5.0)["ok"]
     assert score.score(both_linear, "absorbed", [], 5.0, 5.0)["ok"]
     assert not score.score(both_linear, "unexplained", [], 5.0, 5.0)["ok"]
+
+
+def test_an_interrupted_score_resumes_from_its_log(tmp_path, monkeypatch):
+    sets = tmp_path / "set"
+    sets.mkdir()
+    for name in ("tb_00001", "tb_00002"):
+        (sets / name).mkdir()
+        (sets / name / "session.toml").write_text("")
+        (sets / f"{name}.truth.json").write_text(json.dumps(
+            {"name": name, "kind": "single", "loop": "roll", "effects": [{"name": "noise", "params": {"std": 3e-4}}]}))
+    ran = []
+
+    def one(folder, models, cond, seed, nthread=0, screen=False):
+        ran.append(folder.name)
+        if folder.name == "tb_00002" and len(ran) == 2:
+            raise KeyboardInterrupt
+        return {"name": folder.name, "condition": cond, "truth": "noise", "answer": "none", "seconds": 1.0, "ok": False}
+
+    monkeypatch.setattr(score, "one", one)
+    log = tmp_path / "log.jsonl"
+    try:
+        score.score_set(sets, conditions=("identified",), log=log)
+    except KeyboardInterrupt:
+        pass
+    assert ran == ["tb_00001", "tb_00002"] and len(log.read_text().splitlines()) == 1
+    recs = score.score_set(sets, conditions=("identified",), log=log)
+    # the first is read back, the second run: each once in the log
+    assert ran == ["tb_00001", "tb_00002", "tb_00002"] and [r["name"] for r in recs] == ["tb_00001", "tb_00002"]
+    assert [json.loads(x)["name"] for x in log.read_text().splitlines()] == ["tb_00001", "tb_00002"]

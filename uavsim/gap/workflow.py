@@ -716,16 +716,26 @@ def run_gap(
 
     # 4. verify the refined value of the top candidates with fresh seeds, decide
     top_c = sorted(candidates, key=lambda c: credited_gap(c, best[c][1], credit))[:VERIFY]
-    ver = ev.sims([(c, best[c][0]) for c in top_c], seeds=SEEDS)
+    ver = ev.sims([(c, best[c][0]) for c in top_c], seeds=SEEDS) if top_c else []
     verified = {c: ev.seed_gap(ver[j * SEEDS:(j + 1) * SEEDS]) for j, c in enumerate(top_c)}
-    ranking = [{"effect": "none", "params": {}, "gap": gap_before, "credited": gap_before, "score": gap_before}]
-    for c in candidates:
-        g = verified.get(c, best[c][1])
-        cg = credited_gap(c, g, credit)
-        ranking.append({"effect": c, "params": _effect_params(c, best[c][0]), "gap": g, "credited": cg,
-                        "score": cg + PENALTY})
-    ranking.sort(key=lambda r: r["score"])
-    winner = ranking[0]
+    while True:
+        ranking = [{"effect": "none", "params": {}, "gap": gap_before, "credited": gap_before, "score": gap_before}]
+        for c in candidates:
+            g = verified.get(c, best[c][1])
+            cg = credited_gap(c, g, credit)
+            ranking.append({"effect": c, "params": _effect_params(c, best[c][0]), "gap": g, "credited": cg,
+                            "score": cg + PENALTY})
+        ranking.sort(key=lambda r: r["score"])
+        winner = ranking[0]
+        named = not (gap_before <= NONE_GAP or winner["credited"] > name_ratio * gap_before)
+        if winner["effect"] == "none" or winner["effect"] in verified or not named:
+            break
+        # fresh seeds raised the verified candidates above one scored on its grid's seed alone: it is
+        # verified too before it can be named
+        c = winner["effect"]
+        ver += ev.sims([(c, best[c][0])], seeds=SEEDS)
+        top_c.append(c)
+        verified[c] = ev.seed_gap(ver[-SEEDS:])
     # name an effect only when it explains most of the gap: a gap within noise,
     # or one that no single effect closes, is answered ``none``
     if gap_before <= NONE_GAP or winner["credited"] > name_ratio * gap_before:

@@ -196,16 +196,20 @@ def parse_conditions(text: str) -> tuple[str, ...]:
     return conds
 
 
+def _read_log(path: Path) -> list[dict]:
+    """The records of a ``--log`` file; a clear error when it is not one."""
+    try:
+        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a --log file of JSON lines ({exc})") from None
+
+
 def summarize_log(path: str | Path) -> str:
     """The tables of a ``--log`` file, its answers re-decided with today's thresholds (they are set on these logs)."""
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: not a file (--summarize reads a --log file)")
-    try:
-        recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not a --log file of JSON lines ({exc})") from None
-    return summary([redecide(r) for r in recs])
+    return summary([redecide(r) for r in _read_log(path)])
 
 
 def score_set(folder: str | Path, *, models: str | None = None, conditions: tuple[str, ...] = CONDITIONS,
@@ -213,6 +217,7 @@ def score_set(folder: str | Path, *, models: str | None = None, conditions: tupl
     """Run and score every session of a ``uavsim testbed sessions`` folder under each condition.
 
     One record per session and condition (appended to ``log`` as a JSON line as soon as it is done).
+    An interrupted run resumes: sessions and conditions already in ``log`` are read back, not run again.
     ``screen``: identified base models refitted from the best-flying class (``analyse``'s ``screen``).
     """
     folder = Path(folder)
@@ -224,9 +229,15 @@ def score_set(folder: str | Path, *, models: str | None = None, conditions: tupl
     missing = [f.name for f in folders if not Path(str(f) + ".truth.json").is_file()]
     if missing:
         raise UserError(f"{folder}: no truth file beside {missing[0]} ({missing[0]}.truth.json; {len(missing)} missing)")
+    done = {(r["name"], r["condition"]): r for r in _read_log(Path(log))} if log and Path(log).exists() else {}
+    if done:
+        print(f"{log}: {len(done)} sessions and conditions already scored, not run again", file=sys.stderr, flush=True)
     records = []
     for cond in conditions:
         for f in folders:
+            if (f.name, cond) in done:
+                records.append(done[(f.name, cond)])
+                continue
             r = one(f, models, cond, seed, nthread, screen)
             records.append(r)
             print(f"{cond} {r['name']} {r['truth']} -> {r['answer']} {[x['name'] for x in r.get('found') or []]} "
