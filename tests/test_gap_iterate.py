@@ -557,6 +557,8 @@ def test_saturation_read_off_the_relay_amplitudes_is_named_when_the_base_model_f
     assert "saturation" not in calls[0]["candidates"]
     assert any(m.startswith("saturation read off the relay runs' amplitudes (limit=1.5)") for m in msgs)
     assert "read off the relay runs' amplitudes" in iterate.format_flow(flow)
+    # a clipped cycle is not a staircase: the model's noise keeps its colour, none is screened
+    assert "noise_colour" not in flow.identification and flow.base.noise_corner_hz is None
     # not named when the refit flies no better with it
     calls = _script(monkeypatch, [("none", 3.0, 3.0)])
     monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 3.0, ("saturation",): 3.2}))

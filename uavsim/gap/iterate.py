@@ -87,7 +87,7 @@ from uavsim.formats.session import (
     Session,
     write_session,
 )
-from uavsim.gap.colour import noise_colour
+from uavsim.gap.colour import ColourResult, noise_colour
 from uavsim.gap.features import run_features
 from uavsim.gap.refit import refit_base
 from uavsim.gap.residual import (
@@ -689,7 +689,8 @@ def analyse(
                 if freed != model:
                     starts_s = [*(starts or []), freed]
             # a sensor's filtered noise, quantized or held, stays on a level where white noise hops
-            colour = noise_colour(with_it, model, seed=seed, nthread=nthread)
+            colour = (noise_colour(with_it, model, seed=seed, nthread=nthread) if evidence == "staircase"
+                      else ColourResult(None, {}))  # fmt: skip
             if colour.corner_hz is not None:
                 log(f"model noise coloured with the staircase: low-pass at {colour.corner_hz:g} Hz (gap "
                     + ", ".join(f"{k} {v:.3f}" for k, v in colour.gaps.items()) + ")")
@@ -701,7 +702,8 @@ def analyse(
                 sims_without = (flown or without.sims([("none", 0.0)]))[0]
                 gap_without, fit = fit.gap, fit_s
                 ident["refit"] = fit.to_json()
-                ident["noise_colour"] = colour.to_json()
+                if evidence == "staircase":
+                    ident["noise_colour"] = colour.to_json()
                 found += shown
                 live = with_it
                 for e in shown:
