@@ -40,8 +40,8 @@
    flies the runs better than the one refitted without; that refit is the base model
    of the search, and the gap before is the one without. Before that refit the model's
    noise takes the colour that flies the staircase best (:func:`uavsim.gap.colour.noise_colour`:
-   a filtered sensor's noise, quantized or held, stays on a level where white noise hops). Without a staircase, two
-   relay runs of one ``beta`` whose cycles grow less than their ``h`` does, beyond what
+   a filtered sensor's noise, quantized or held, stays on a level where white noise hops).
+   Without a staircase, two relay runs of one ``beta`` whose cycles grow less than their ``h`` does, beyond what
    the base model flies, read a saturation with its limit the same way; cycles that grow
    more, with step runs that settle as the model's do, read a dead zone with its width
    (:func:`uavsim.gap.workflow.read_off_relays`).

@@ -229,9 +229,10 @@ def score_set(folder: str | Path, *, models: str | None = None, conditions: tupl
     missing = [f.name for f in folders if not Path(str(f) + ".truth.json").is_file()]
     if missing:
         raise UserError(f"{folder}: no truth file beside {missing[0]} ({missing[0]}.truth.json; {len(missing)} missing)")
-    done = {(r["name"], r["condition"]): r for r in _read_log(Path(log))} if log and Path(log).exists() else {}
-    if done:
-        print(f"{log}: {len(done)} sessions and conditions already scored, not run again", file=sys.stderr, flush=True)
+    done = {(r.get("name"), r.get("condition")): r for r in _read_log(Path(log))} if log and Path(log).exists() else {}
+    again = sum((f.name, c) in done for f in folders for c in conditions)
+    if again:
+        print(f"{log}: {again} sessions and conditions already scored, not run again", file=sys.stderr, flush=True)
     records = []
     for cond in conditions:
         for f in folders:
