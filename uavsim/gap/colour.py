@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.formats.session import ModelSpec, Session
-from uavsim.gap.features import noise_offsets, noise_scales
 from uavsim.gap.workflow import GapEvaluator, base_effects
 
 __all__ = ["CORNERS_HZ", "ColourResult", "noise_colour"]
@@ -91,17 +90,17 @@ def noise_colour(
     nyquist = 0.5 * float(session.control_rate_hz)
     gaps: dict[str, float] = {}
     best, best_gap = None, math.inf
+    ev = GapEvaluator(session, model, base_effects(session), seed, nthread, dt)  # the measured features once
     for c in corners:
         if c is not None and not 0 < c < nyquist:
             continue
-        ev = GapEvaluator(session, dataclasses.replace(model, noise_corner_hz=c), base_effects(session), seed,
-                          nthread, dt)  # fmt: skip
+        # every corner flies the same draws of the white noise it filters
+        ev.model, ev.calls = dataclasses.replace(model, noise_corner_hz=c), 0
         fb = [ev.features(s) for s in ev.sims([("none", 0.0)], seeds=SEEDS)]
         if any(f is None for run in fb for f in run):
             gaps[_key(c)] = math.inf
             continue
-        ev.scales = noise_scales(fb)
-        ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
+        ev.calibrate(fb)
         g = float(np.mean([ev.gap(f) for f in fb]))
         gaps[_key(c)] = g
         if g < best_gap:

@@ -702,7 +702,7 @@ def analyse(
                 sims_without = (flown or without.sims([("none", 0.0)]))[0]
                 gap_without, fit = fit.gap, fit_s
                 ident["refit"] = fit.to_json()
-                if evidence == "staircase":
+                if colour.gaps:  # screened: a staircase
                     ident["noise_colour"] = colour.to_json()
                 found += shown
                 live = with_it

@@ -52,7 +52,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavsim.formats.session import ModelSpec, Session
-from uavsim.gap.features import noise_offsets, noise_scales
 from uavsim.gap.simulate import Episode
 from uavsim.gap.workflow import GapEvaluator, base_effects
 
@@ -241,8 +240,7 @@ def refit_base(
         return RefitResult(model=model, start=model, gap_before=math.inf, gap_after=math.inf,
                            moved=dict.fromkeys(PARAMS, 1.0), accepted=False, iterations=0, episodes=3 * R,
                            seconds=time.perf_counter() - t0)  # fmt: skip
-    ev.scales = noise_scales(fb)
-    ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
+    ev.calibrate(fb)
     x0 = _to_x(model)
     episodes = 3 * R
     screened = None

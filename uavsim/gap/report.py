@@ -11,6 +11,7 @@ answer and ``model.toml`` the updated model (``[model]`` plus ``[[effects]]``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from uavsim.errors import UserError
-from uavsim.formats.session import Session
+from uavsim.formats.session import ModelSpec, Session
 from uavsim.gap.workflow import GapResult, format_table
 
 __all__ = ["write_report", "model_toml"]
@@ -30,7 +31,7 @@ def model_toml(result: GapResult) -> str:
     """The updated model as TOML: the ``[model]`` table and one ``[[effects]]`` table per effect."""
     m = result.model
     lines = ["[model]"]
-    for k in ("K", "T_prop", "T1", "T2", "tau", "noise_std", "noise_corner_hz"):
+    for k in (f.name for f in dataclasses.fields(ModelSpec)):
         v = getattr(m, k)
         if v is not None:
             lines.append(f"{k} = {float(v)!r}")

@@ -197,8 +197,8 @@ def read_model_file(path: str | Path, loop: str) -> ModelSpec:
     where = str(p)
     doc = load_toml(p, "gap-model")  # keys, types and ranges (uavsim.schema.gap)
     table = doc.get("model", doc)
-    keys = ("K", "T_prop", "T1", "T2", "tau", "noise_std", "noise_corner_hz")
-    model = ModelSpec(**{k: table.get(k) for k in keys if k in table})
+    keys = [f.name for f in dataclasses.fields(ModelSpec)]
+    model = ModelSpec(**{k: table[k] for k in keys if k in table})
     if model.noise_std is None:
         model.noise_std = 0.0
     validate_model(model, loop, where)
@@ -487,6 +487,13 @@ class GapEvaluator:
         phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
         return min(phase / w, float(self.model.tau))
 
+    def calibrate(self, feats_by_seed: list[list[dict | None]], *, smoother: bool = True) -> None:
+        """Set the noise scales (and, with ``smoother``, the sensor's smoothing offsets) from the
+        model's own flights over several noise seeds (:func:`noise_scales`, :func:`noise_offsets`)."""
+        self.scales = noise_scales(feats_by_seed)
+        if smoother:
+            self.offsets = noise_offsets(self.meas, feats_by_seed, self.scales)
+
     def features(self, sims: list[SimRun]) -> list[dict | None]:
         return [run_features(r.spec, s.t, s.y, s.u) for r, s in zip(self.session.runs, sims, strict=True)]
 
@@ -657,9 +664,7 @@ def run_gap(
             )
         if f is None:
             raise UnflownRun(i, f"run {i} ({r.spec.file}): the model's step response diverges; check the model")
-    ev.scales = noise_scales(fb)
-    if smoother_sensor:
-        ev.offsets = noise_offsets(ev.meas, fb, ev.scales)
+    ev.calibrate(fb, smoother=smoother_sensor)
     gaps_before = [ev.gap(f) for f in fb]
     gap_before = float(np.mean(gaps_before))
     z = compare(ev.meas, fb[0], ev.scales, ev.offsets)
@@ -727,6 +732,8 @@ def run_gap(
                             "score": cg + PENALTY})
         ranking.sort(key=lambda r: r["score"])
         winner = ranking[0]
+        # name an effect only when it explains most of the gap: a gap within noise,
+        # or one that no single effect closes, is answered ``none``
         named = not (gap_before <= NONE_GAP or winner["credited"] > name_ratio * gap_before)
         if winner["effect"] == "none" or winner["effect"] in verified or not named:
             break
@@ -736,9 +743,7 @@ def run_gap(
         ver += ev.sims([(c, best[c][0])], seeds=SEEDS)
         top_c.append(c)
         verified[c] = ev.seed_gap(ver[-SEEDS:])
-    # name an effect only when it explains most of the gap: a gap within noise,
-    # or one that no single effect closes, is answered ``none``
-    if gap_before <= NONE_GAP or winner["credited"] > name_ratio * gap_before:
+    if not named:
         winner = ranking[[r["effect"] for r in ranking].index("none")]
     effect = winner["effect"]
     if effect == "none":
