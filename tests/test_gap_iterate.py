@@ -18,6 +18,7 @@ from uavsim.gap.refit import PARAMS, RefitResult
 from uavsim.gap.residual import residual_character, run_residual
 from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import GapResult, UnflownRun
+from uavsim.noise.estimate import white_std
 
 RATE = 200.0
 
@@ -460,6 +461,45 @@ def test_noise_by_level_is_off_on_a_staircase_and_where_clean_sessions_overlap(m
     s = _session()
     s.model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.01, noise_std=2.0 * level)
     assert iterate.analyse(s).found == []
+
+
+def test_altitude_noise_is_named_from_its_white_part(monkeypatch):
+    """The camera's estimate is smooth at the sample rate: a white part beyond WHITE_SHARE of the
+    identified std is a noise source, named with the white std; a smooth signal's is not."""
+    share = iterate.WHITE_SHARE["altitude"]
+    assert iterate.WHITE_SHARE["attitude"] is None
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    s = _identified(monkeypatch, 0.02, loop="altitude")
+    rng = np.random.default_rng(5)
+    for r in s.runs:
+        r.data.y[:] = r.data.y + rng.normal(0.0, 0.02, r.data.y.size)
+    msgs = []
+    flow = iterate.analyse(s, log=msgs.append)
+    assert flow.answer == "named" and [e.name for e in flow.found] == ["noise"]
+    assert flow.found[0].params["std"] == pytest.approx(0.02, rel=0.1)
+    assert flow.identification["white_noise_std"] == pytest.approx(0.02, rel=0.1)
+    assert any("white at the sample rate" in m for m in msgs)
+    # the same std in the model, the samples smooth (a filtered sensor): nothing named
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 0.02, loop="altitude"))
+    assert flow.found == [] and flow.identification["white_noise_std"] < share * 0.02
+    # a staircase keeps its own steps in that std: nothing named
+    _script(monkeypatch, [("none", 2.0, 2.0)])
+    s = _identified(monkeypatch, 0.02, loop="altitude")
+    for r in s.runs:
+        r.data.y[:] = r.data.y + rng.normal(0.0, 0.02, r.data.y.size)
+        r.data.y[1::2] = r.data.y[0::2][: r.data.y[1::2].size]
+    flow = iterate.analyse(s)
+    assert flow.identification["white_noise_std"] > share * 0.02 and "noise" not in [e.name for e in flow.found]
+
+
+def test_white_std_reads_white_noise_and_not_a_smooth_cycle():
+    rng = np.random.default_rng(0)
+    t = np.arange(4000) / 200.0
+    smooth = 0.03 * np.sin(2 * np.pi * 2.0 * t)
+    assert white_std(smooth) < 0.05 * 0.002  # a 2 Hz cycle at 200 Hz: its second difference is ~1e-4 of it
+    assert white_std(smooth + rng.normal(0.0, 0.002, t.size)) == pytest.approx(0.002, rel=0.05)
+    assert white_std(np.zeros(3)) == 0.0
 
 
 def test_noise_by_level_leaves_one_place_for_the_search(monkeypatch):

@@ -165,6 +165,21 @@ def highpass(y: np.ndarray, rate_hz: float, cutoff_hz: float, order: int = 4) ->
     return _signal.sosfiltfilt(sos, x, padlen=pad)
 
 
+def white_std(y: np.ndarray) -> float:
+    """Std of the white part of a signal's noise, from its second difference (output units).
+
+    The robust std (MAD x 1.4826) of ``diff(y, 2)`` over sqrt(6), which is the std of
+    white noise added sample by sample; a signal smooth at the sample rate (a cycle of
+    tens of samples, a filtered estimate such as a Kalman filter's) gives almost none,
+    and the few samples around a relay switch or an estimator's correction do not
+    count. Zero for fewer than 4 samples.
+    """
+    d2 = np.diff(np.asarray(y, dtype=np.float64), 2)
+    if d2.size < 4:
+        return 0.0
+    return 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+
+
 def smooth_part(x: np.ndarray, rate_hz: float, cutoff_hz: float | np.ndarray, order: int = 4) -> np.ndarray:
     """Zero-phase low-pass of each row: gain ``1 / (1 + (f / cutoff_hz)^(2 order))``.
 
