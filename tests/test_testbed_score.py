@@ -36,6 +36,8 @@ def test_record_keeps_what_was_named_from_its_level(tmp_path, monkeypatch):
     assert r["by_level"] == ["noise"] and r["ok"] and abs(r["param_rel_err"] - 0.4 / 3) < 1e-9
     table = score.summary([r])
     assert "noise std 0.00026 (from its level)" in table and "| yes |" in table
+    # the model carries the measured noise: no gap to shrink, so it is not one of the gap ratios
+    assert "when a single is named: 0/0 (1 more named from their level, no gap to shrink)" in table
 
 
 def test_summary_of_a_record_without_the_field():
