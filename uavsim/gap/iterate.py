@@ -211,7 +211,7 @@ NOISE_STD: dict[str, float | None] = {"altitude": None, "attitude": 2.0e-4}
 #: is 1-7 % of the identified std, where a white noise source added at the sample makes it 63-123 % (39
 #: altitude development sessions of seeds 400000-400999 without one, 9 noise singles: their white std
 #: within 3 % of the source's). Not on attitude: the IMU's attitude estimate is white at the sample rate
-#: itself (the share 1.2-3.9 on 11 attitude development sessions without a noise source), where its level
+#: itself (the share 1.2-3.9 on 12 attitude development sessions without a noise source), where its level
 #: names the noise (:data:`NOISE_STD`)
 WHITE_SHARE: dict[str, float | None] = {"altitude": 0.3, "attitude": None}
 #: per loop family, whether step runs that keep swinging at one size whatever their step
