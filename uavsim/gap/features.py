@@ -57,6 +57,7 @@ import numpy as np
 
 from uavsim.formats.session import STEP_RUN, RunSpec
 from uavsim.noise.analysis import cycle_harmonics, relay_phase
+from uavsim.noise.estimate import robust_std
 
 __all__ = ["FLOORS", "DISTANCES", "SMOOTHER", "run_features", "compare", "gap_value", "noise_offsets", "worst_window",
            "tail_swing", "step_swings"]
@@ -97,7 +98,7 @@ def _resid_features(x: np.ndarray, resid: np.ndarray, scale: float) -> dict[str,
     if d2.size < 4:
         return {"resid": 0.0, "ac1": 0.0, "repeat": 0.0}
     med = np.median(d2)
-    mad = 1.4826 * float(np.median(np.abs(d2 - med)))
+    mad = robust_std(d2, med)
     sd = mad / math.sqrt(6.0)
     # rounding of the mean cycle's interpolation leaves ~1e-17 where a staircase is flat
     moving = np.abs(d2) > 1e-9 * scale
@@ -108,7 +109,7 @@ def _resid_features(x: np.ndarray, resid: np.ndarray, scale: float) -> dict[str,
         # without zeros and falls smoothly as the stairs lengthen
         dm = d2[moving]
         share = float(moving.mean())
-        sd = 1.4826 * float(np.median(np.abs(dm - np.median(dm)))) * math.sqrt(share) / math.sqrt(6.0)
+        sd = robust_std(dm) * math.sqrt(share) / math.sqrt(6.0)
     spread = sd * math.sqrt(6.0)  # the MAD, or the staircase's level of its moving samples
     c = np.clip(d2 - med, -5 * spread - 1e-300, 5 * spread + 1e-300)
     c = c - c.mean()

@@ -545,14 +545,26 @@ def noise_by_level(model: ModelSpec, loop: str, *, staircase: bool = False,
     samples, :func:`uavsim.gap.workflow.data_hints`) has its own steps in that std,
     so it names nothing.
     """
+    named = _noise_by_level(model, loop, staircase=staircase, white_std=white_std)
+    return None if named is None else named[0]
+
+
+def _noise_by_level(model: ModelSpec, loop: str, *, staircase: bool,
+                    white_std: float | None) -> tuple[EffectSpec, str] | None:
+    """:func:`noise_by_level` with the reason it names the noise, as the log says it."""
     if staircase:
         return None
-    level, share = NOISE_STD[family(loop)], WHITE_SHARE[family(loop)]
+    fam = family(loop)
+    level, share = NOISE_STD[fam], WHITE_SHARE[fam]
     std = float(model.noise_std or 0.0)
     if level is not None and std > level:
-        return EffectSpec("noise", {"std": std})
+        return EffectSpec("noise", {"std": std}), (
+            f"the identified model's noise std {std:.3g} is over {level:.3g}, which the testbed vehicle's "
+            f"{fam} sessions without a noise source stay under")  # fmt: skip
     if share is not None and white_std is not None and std > 0 and white_std > share * std:
-        return EffectSpec("noise", {"std": float(white_std)})
+        return EffectSpec("noise", {"std": float(white_std)}), (
+            f"the runs' noise is white at the sample rate (std {white_std:.3g}, {white_std / std:.0%} of the "
+            f"identified model's {std:.3g}), where the {fam} sensor's own is smooth")  # fmt: skip
     return None
 
 
@@ -744,18 +756,12 @@ def analyse(
     if source == "identified":
         white = float(np.median([white_std(r.data.y) for r in live.runs]))
         ident["white_noise_std"] = white
-        by_level = noise_by_level(model, session.loop, staircase=bool(data_hints(live, live.control_rate_hz)),
-                                  white_std=white)
+        named = _noise_by_level(model, session.loop, staircase=bool(data_hints(live, live.control_rate_hz)),
+                                white_std=white)
+        if named is not None:
+            by_level, why = named
+            log(f"noise named from its level: {why}; the gap cannot show it (the model carries it)")
     if by_level is not None:
-        fam = family(session.loop)
-        if NOISE_STD[fam] is not None and float(model.noise_std or 0.0) > NOISE_STD[fam]:
-            why = (f"the identified model's noise std {by_level.params['std']:.3g} is over {NOISE_STD[fam]:.3g}, "
-                   f"which the testbed vehicle's {fam} sessions without a noise source stay under")
-        else:
-            why = (f"the runs' noise is white at the sample rate (std {by_level.params['std']:.3g}, "
-                   f"{by_level.params['std'] / float(model.noise_std):.0%} of the identified model's "
-                   f"{float(model.noise_std):.3g}), where the {fam} sensor's own is smooth")
-        log(f"noise named from its level: {why}; the gap cannot show it (the model carries it)")
         found.append(by_level)
         candidates = tuple(c for c in candidates if c != "noise")
     ranged = session.actuator is not None

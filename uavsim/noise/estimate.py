@@ -165,6 +165,13 @@ def highpass(y: np.ndarray, rate_hz: float, cutoff_hz: float, order: int = 4) ->
     return _signal.sosfiltfilt(sos, x, padlen=pad)
 
 
+def robust_std(x: np.ndarray, center: float | None = None) -> float:
+    """1.4826 x the median absolute deviation of ``x`` about ``center`` (its median when None): the std
+    of Gaussian samples, which a few outliers do not move."""
+    c = float(np.median(x)) if center is None else center
+    return 1.4826 * float(np.median(np.abs(x - c)))
+
+
 def white_std(y: np.ndarray) -> float:
     """Std of the white part of a signal's noise, from its second difference (output units).
 
@@ -177,7 +184,7 @@ def white_std(y: np.ndarray) -> float:
     d2 = np.diff(np.asarray(y, dtype=np.float64), 2)
     if d2.size < 4:
         return 0.0
-    return 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
+    return robust_std(d2) / math.sqrt(6.0)
 
 
 def smooth_part(x: np.ndarray, rate_hz: float, cutoff_hz: float | np.ndarray, order: int = 4) -> np.ndarray:
