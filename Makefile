@@ -8,6 +8,9 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.uavsim-installed
 OUT    ?= out
 LOOPS  ?= altitude attitude altitude-second
+# test worker processes (pytest-xdist; 0: in this process). CI has 2 cores; each worker takes whole
+# test files (--dist loadfile), so a file's module fixtures are built once
+TEST_JOBS ?= 2
 export RERUN_ANALYTICS := 0
 
 .PHONY: demo test test-slow lint bench generate-data train replay clean help
@@ -48,10 +51,10 @@ demo: $(STAMP)
 	$(BIN)/uavsim replay $(OUT)/demo-sessions/altitude --save $(OUT)/demo-altitude.rrd
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadfile
 
 test-slow: $(STAMP)
-	$(BIN)/python -m pytest -q -m "slow or not slow" --timeout 0
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadfile -m "slow or not slow" --timeout 0
 
 lint: $(STAMP)
 	$(BIN)/ruff check uavsim tests docs
