@@ -293,6 +293,33 @@ def test_lag_like_candidates_and_a_rate_limit_take_their_phase_out_of_tau():
     assert ev.tau_shift("rate_limit", 40.0) == 0.0  # no relay amplitude given: no phase
 
 
+def test_a_lag_like_candidate_takes_the_phase_tau_cannot_hold_out_of_t_prop_at_the_same_gain():
+    from uavsim.gap.workflow import T_PROP_KEEP, GapEvaluator, candidate_phase
+
+    session, _ = hidden_session(3, effect="none")
+    f, w = 2.0, 2 * math.pi * 2.0
+    model = ModelSpec(K=1.3, T_prop=0.15, T1=0.4, tau=0.002, noise_std=0.0)
+    ev = GapEvaluator(session, model, {}, 0, 1, 0.001, anchor_hz=f)
+
+    def response(m, shift=0.0):  # the inner loops' K e^{-jw tau} / (jw (T_prop jw + 1)(T1 jw + 1))
+        s = 1j * w
+        return m.K * np.exp(-s * (m.tau - shift)) / (s * (m.T_prop * s + 1) * (m.T1 * s + 1))
+
+    phase = candidate_phase("lowpass", 5.0, f)
+    assert phase > w * model.tau  # more than tau holds
+    cut = ev.trimmed("lowpass", 5.0)
+    assert cut is not None and cut.T_prop < model.T_prop and cut.tau == model.tau
+    g0, g1 = response(model), response(cut, ev.tau_shift("lowpass", 5.0))
+    assert abs(g1) == pytest.approx(abs(g0), rel=1e-12)  # the gain at the cycle stays
+    assert np.angle(g1 / g0) == pytest.approx(phase, abs=1e-9)  # the candidate's whole phase is taken out
+    # what tau holds alone needs no cut; without an anchor, or for a delay, nothing moves
+    assert ev.trimmed("lag", 1e-4) is None
+    assert GapEvaluator(session, model, {}, 0, 1, 0.001).trimmed("lowpass", 5.0) is None
+    assert ev.trimmed("delay", 0.05) is None
+    # a phase beyond what T_prop holds leaves it at its floor
+    assert ev.trimmed("lag", 10.0).T_prop == pytest.approx(T_PROP_KEEP * model.T_prop)
+
+
 def test_a_frame_hold_takes_its_half_frame_beyond_the_control_rates_out_of_tau():
     from uavsim.gap.workflow import GapEvaluator, candidate_phase
 

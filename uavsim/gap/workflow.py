@@ -65,6 +65,7 @@ from uavsim.gap.features import (
     worst_window,
 )
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
+from uavsim.lumped.params import INNER_LOOPS
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
@@ -84,6 +85,9 @@ SEEDS = 3
 VERIFY = 3
 #: factors around the winner's value for its final, seed-averaged fit
 POLISH = (0.85, 0.92, 1.0, 1.08, 1.17)
+#: least share of an identified model's ``T_prop`` a lag-like candidate leaves when it takes its phase
+#: out of the model beyond ``tau`` (:meth:`GapEvaluator.trimmed`)
+T_PROP_KEEP = 0.05
 
 
 def credited_gap(name: str, gap: float, credit: dict[str, float] | None) -> float:
@@ -465,7 +469,7 @@ class GapEvaluator:
 
     def sims(self, cands: list[tuple[str, float]], seeds: int = 1) -> list[list[SimRun]]:
         """Per (candidate, seed), the simulated runs."""
-        plans = [Episode(i, name, float(v), s, self.tau_shift(name, float(v)))
+        plans = [Episode(i, name, float(v), s, self.tau_shift(name, float(v)), self.trimmed(name, float(v)))
                  for name, v in cands for s in range(seeds) for i in range(self.R)]  # fmt: skip
         return self.fly(plans)
 
@@ -486,6 +490,28 @@ class GapEvaluator:
         w = 2 * math.pi * self.anchor_hz
         phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
         return min(phase / w, float(self.model.tau))
+
+    def trimmed(self, name: str, value: float) -> ModelSpec | None:
+        """The model with its ``T_prop`` cut to take out the phase candidate ``name`` = ``value`` adds at
+        the anchor beyond what :meth:`tau_shift` takes out of ``tau``, ``K`` scaled to keep the model's gain
+        there; None when ``tau`` holds it all (or without an anchor, or on an outer loop).
+
+        A network's class can carry the cycle's lag in ``T_prop`` with ``tau`` near 0 (a low-pass's
+        phase read as a slower propulsion): without the cut such a candidate adds its phase twice and
+        cannot fly the cycle it explains. ``T_prop`` keeps at least :data:`T_PROP_KEEP` of itself.
+        """
+        if not self.anchor_hz or self.session.loop not in INNER_LOOPS:
+            return None
+        w = 2 * math.pi * self.anchor_hz
+        phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
+        rest = phase - w * self.tau_shift(name, value)
+        m = self.model
+        if not (rest > 1e-9 and m.T_prop > 0):
+            return None
+        tp = max(math.tan(max(math.atan(w * m.T_prop) - rest, 0.0)) / w, T_PROP_KEEP * m.T_prop)
+        # the inner loops' T_prop is a first-order factor 1 / (T_prop s + 1): its gain at w moves with it
+        k = m.K * math.hypot(1.0, w * tp) / math.hypot(1.0, w * m.T_prop)
+        return dataclasses.replace(m, K=k, T_prop=tp)
 
     def calibrate(self, feats_by_seed: list[list[dict | None]], *, smoother: bool = True) -> None:
         """Set the noise scales (and, with ``smoother``, the sensor's smoothing offsets) from the
@@ -762,10 +788,15 @@ def run_gap(
         log(f"winner polished ({time.perf_counter() - t_start:.1f} s)")
         effects = [e for e in session.effects if e.name != effect]
         effects.append(EffectSpec(effect, dict(winner["params"])))
-        shift = ev.tau_shift(effect, float(next(iter(winner["params"].values()))))
+        value = float(next(iter(winner["params"].values())))
+        shift, cut = ev.tau_shift(effect, value), ev.trimmed(effect, value)
         if shift:
             log(f"{effect} takes {shift * 1e3:.1f} ms of phase out of tau ({model.tau * 1e3:.1f} ms)")
             model = dataclasses.replace(model, tau=max(float(model.tau) - shift, 0.0))
+        if cut is not None:
+            log(f"{effect} takes the rest of its phase out of T_prop ({model.T_prop * 1e3:.1f} -> "
+                f"{cut.T_prop * 1e3:.1f} ms, K {model.K:.4g} -> {cut.K:.4g})")
+            model = dataclasses.replace(model, K=cut.K, T_prop=cut.T_prop)
     return GapResult(
         effect=effect,
         params=dict(winner["params"]),
