@@ -50,9 +50,10 @@ def _sim(t, y, u):
     return SimRun(t, np.zeros_like(t), y, u, False)
 
 
-def _script(monkeypatch, answers, sims_of=None):
+def _script(monkeypatch, answers, sims_of=None, behind=()):
     """Replace run_gap by a scripted search: answers[k] = (effect, gap_before, gap_after) of search k;
-    its simulated runs are the measured ones, or ``sims_of(session)``."""
+    its simulated runs are the measured ones, or ``sims_of(session)``; ``behind``: (effect, gap) ranked
+    after the answer in every search."""
     calls = []
 
     def fake(session, model=None, seed=0, nthread=0, candidates=(), log=None, **kw):
@@ -62,6 +63,7 @@ def _script(monkeypatch, answers, sims_of=None):
         params = {} if effect == "none" else {"x": 1.0}
         effects = list(session.effects) + ([] if effect == "none" else [EffectSpec(effect, params)])
         ranking = [{"effect": effect, "params": params, "gap": ga, "score": ga}]
+        ranking += [{"effect": e, "params": {"x": 1.0}, "gap": g, "score": g} for e, g in behind]
         return GapResult(effect, params, gb, ga, ranking, [], model or session.model, effects, seed, 0.1,
                          sims_before=sims, sims_after=sims)  # fmt: skip
 
@@ -143,6 +145,42 @@ def test_identified_base_is_used_and_said(monkeypatch):
     assert any(m.startswith("no [model]: base model identified from r0.csv") for m in msgs)
     assert "identification refused r9.csv: no steady state" in msgs
     assert flow.answer == "absorbed" and flow.absorbed["moved_s"] == pytest.approx(0.04)
+
+
+def test_a_gap_above_the_floor_whose_best_candidate_is_linear_is_absorbed(monkeypatch):
+    # nothing named, no sign beyond the vocabulary: the identified linear model took in a linear effect
+    # (a low-pass's phase in its lags) when the best candidate is one; another best stays unexplained
+    from uavsim.testbed.score import redecide
+
+    monkeypatch.setattr(iterate, "NONE_GAP", {"attitude": 6.0, "attitude+actuator": 3.0})
+    for best, answer in (("lowpass", "absorbed"), ("lag", "absorbed"), ("bias", "unexplained")):
+        assert iterate.decide(False, 9.0, "pitch", None, best=best) == answer
+        assert iterate.decide(False, 9.0, "pitch", None, True, best=best) == "unexplained"  # beyond: wander, ring
+        assert iterate.decide(False, 4.0, "pitch", None, best=best) == "none"  # within the floor as before
+    ident = {"run": "r0.csv", "class": 3, "params": {"tau": 0.012}, "class_params": {"tau": 0.01},
+             "oscillation": {"period": 0.5}, "refused_runs": []}  # fmt: skip
+    model = ModelSpec(K=1.0, T_prop=0.05, T1=0.4, tau=0.012, noise_std=0.0)
+    monkeypatch.setattr(iterate, "identify_base", lambda s, m: (model, ident))
+    answers = {}
+    for best in ("lowpass", "bias"):
+        _script(monkeypatch, [("none", 9.0, 9.0)], behind=[(best, 7.0), ("dead_zone", 8.0)])
+        s = _session()
+        s.model = None
+        flow = iterate.analyse(s)
+        answers[best] = flow.answer
+        if best == "lowpass":
+            a = flow.absorbed
+            assert a["effects"] == ["lowpass"] and a["best"]["gap"] == 7.0 and a["moved_s"] == pytest.approx(0.002)
+            assert "best candidate is a linear lowpass" in iterate.format_flow(flow)
+    assert answers == {"lowpass": "absorbed", "bias": "unexplained"}
+    # a session's own model takes in nothing: its linear best candidate leaves the gap unexplained
+    _script(monkeypatch, [("none", 9.0, 9.0)], behind=[("lowpass", 7.0)])
+    assert iterate.analyse(_session()).answer == "unexplained"
+    # a logged record decides the same again, from its logged ranking
+    rec = {"answer": "unexplained", "found": [], "gap_before": 9.0, "gap_after": 9.0, "loop": "pitch", "kind": "single",
+           "truth": "lowpass", "identification": ident, "ranking": [("none", 9.0), ("lowpass", 7.0)]}  # fmt: skip
+    assert redecide(rec)["answer"] == "absorbed" and redecide(rec)["ok"]
+    assert redecide({**rec, "identification": None})["answer"] == "unexplained"
 
 
 def test_identification_falls_back_to_the_next_relay_run(monkeypatch):

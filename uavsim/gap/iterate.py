@@ -53,7 +53,9 @@
    its actuators' range has floors of its own, :func:`floors_of`), ``absorbed``
    when it is and the identified (refitted) model shows a phase lag at the
    cycle beyond its class's (a linear delay, lag or low-pass moved ``tau`` or
-   the lags: reported with the move), else ``unexplained`` with the residual's character
+   the lags: reported with the move), or when it is not and the search's best
+   candidate is a linear effect (:data:`TAKEN_IN`: the identified linear model took
+   it in, imperfectly), else ``unexplained`` with the residual's character
    (:mod:`uavsim.gap.residual`). Step runs that keep swinging at one size whatever their
    step (a limit cycle under the steps' PD, as play in the loop makes, which no vocabulary
    effect flies) make it ``unexplained`` whatever the gap (:data:`PLAY_LOOPS`), and so do relay
@@ -139,6 +141,8 @@ __all__ = [
     "NOISE_STD",
     "WHITE_SHARE",
     "BEYOND",
+    "TAKEN_IN",
+    "best_candidate",
 ]
 
 #: most effects added one after the other
@@ -241,6 +245,10 @@ THIRD_RISE: dict[str, float | None] = {"altitude": None, "attitude": 1.20}
 #: ``unexplained`` (``FlowResult.residual``'s keys, as logged): steps that hunt, relay periods that
 #: wander, a third harmonic the loop passes beyond the model's
 BEYOND = ("play", "wander", "ring")
+#: the vocabulary's linear effects, which an identified linear model takes in (in ``tau``, its lags or ``K``):
+#: with an identified base model, a gap above the floor that no candidate names, whose best candidate is one
+#: of them and which the runs show nothing beyond (:data:`BEYOND`), is answered ``absorbed`` (:func:`decide`)
+TAKEN_IN = ("delay", "lag", "gain", "lowpass")
 #: what an effect read off the runs was read from (``FlowResult.from_samples``' ``evidence``), as logged
 READ_FROM = {"staircase": "the samples", "relay amplitudes": "the relay runs' amplitudes"}
 
@@ -495,7 +503,7 @@ def _phase_lag(p: dict, w: float) -> float:
     return -float(unwrapped_phase_batch("attitude", np.array([w]), **{k: float(p[k]) for k in ("T_prop", "T1", "tau")})[0, 0])
 
 
-def absorbed_by(ident: dict | None) -> dict | None:
+def absorbed_by(ident: dict | None, *, any_move: bool = False) -> dict | None:
     """The linear effects the identified model took in, read off identify's answer (None when it shows none).
 
     The network's class gives the loop's shape (``T_prop``, ``T1``) and its own
@@ -508,7 +516,8 @@ def absorbed_by(ident: dict | None) -> dict | None:
     refit may have put that phase in ``T_prop`` or ``T1`` as well: the phase lag
     the refit model adds at the cycle beyond the class's, as a delay (``moved_s``),
     is compared with :data:`ABSORB_REFIT_SHARE` of the period, and the refit's
-    moves are reported with it.
+    moves are reported with it. ``any_move``: the move whatever its size (a gap's
+    linear best candidate already says the model took an effect in).
     """
     if not ident or "class_params" not in ident or "tau" not in ident.get("class_params", {}):
         return None
@@ -521,11 +530,11 @@ def absorbed_by(ident: dict | None) -> dict | None:
     if fit and fit.get("accepted") and {"T_prop", "T1"} <= set(cls):
         w = 2 * math.pi / period
         moved = (_phase_lag(fit["model"], w) - _phase_lag(cls, w)) / w
-        if moved <= ABSORB_REFIT_SHARE * period:
+        if moved <= ABSORB_REFIT_SHARE * period and not any_move:
             return None
         return {"parameter": "tau", "identified": float(fit["model"]["tau"]), "class": tau_c, "moved_s": moved,
                 "refit": fit["moved"], "effects": ["delay", "lag", "lowpass"]}  # fmt: skip
-    if tau - tau_c <= ABSORB_TAU_SHARE * period:
+    if tau - tau_c <= ABSORB_TAU_SHARE * period and not any_move:
         return None
     return {"parameter": "tau", "identified": tau, "class": tau_c, "moved_s": tau - tau_c,
             "effects": ["delay", "lag", "lowpass"]}  # fmt: skip
@@ -615,17 +624,24 @@ def declined(res: GapResult, model: ModelSpec) -> GapResult:
 
 
 def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, beyond: bool = False, *,
-           actuator: bool = False) -> str:
+           actuator: bool = False, best: str | None = None) -> str:
     """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the runs show what no
     vocabulary effect flies (``beyond``: steps that hunt, cycles that wander or ring), else by the base model's
-    gap and the identification."""
+    gap and the identification: within the floor ``none`` or ``absorbed``; above it ``absorbed`` when the
+    search's best candidate ``best`` (an identified base model's) is a linear effect (:data:`TAKEN_IN`), else
+    ``unexplained``."""
     if named:
         return "named"
     if beyond:
         return "unexplained"
     if gap_before <= NONE_GAP[floors_of(loop, actuator)]:
         return "absorbed" if absorbed else "none"
-    return "unexplained"
+    return "absorbed" if best in TAKEN_IN else "unexplained"
+
+
+def best_candidate(ranking: list[dict]) -> dict | None:
+    """The search's best-scoring candidate (``GapResult.ranking``'s first entry that is not the bare model)."""
+    return next((r for r in ranking if r["effect"] != "none"), None)
 
 
 def analyse(
@@ -833,8 +849,14 @@ def analyse(
             residual["summary"] = sign["summary"] + "; " + residual["summary"]
             log(sign["summary"])
     absorbed = absorbed_by(ident) if source == "identified" else None
+    best = best_candidate(steps[0].ranking) if source == "identified" else None
     answer = decide(bool(found), gap_before, session.loop, absorbed, beyond=any(v is not None for v in beyond.values()),
-                    actuator=ranged)
+                    actuator=ranged, best=best and best["effect"])
+    if answer == "absorbed" and gap_before > NONE_GAP[floors_of(session.loop, ranged)]:
+        # above the floor: the linear best candidate says what the identified model took in
+        absorbed = {**(absorbed_by(ident, any_move=True) or {"parameter": "tau", "moved_s": 0.0}),
+                    "effects": [best["effect"]], "best": {"effect": best["effect"], "params": best["params"],
+                                                          "gap_before": gap_before, "gap": best["gap"]}}  # fmt: skip
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
                       dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
@@ -872,7 +894,15 @@ def format_flow(flow: FlowResult) -> str:
         )
     elif flow.answer == "absorbed":
         a = flow.absorbed
-        if "refit" in a:
+        if "best" in a:
+            b = a["best"]
+            lines.append(f"answer: absorbed: the gap's best candidate is a linear {b['effect']} ("
+                         + ", ".join(f"{k} {v:.4g}" for k, v in b["params"].items())
+                         + f"; gap {b['gap_before']:.3f} -> {b['gap']:.3f}, too little to name it), which the "
+                         "identified linear model takes in"
+                         + (f"; its phase at the cycle moved +{a['moved_s'] * 1e3:.1f} ms beyond its class's"
+                            if a.get("moved_s") else ""))  # fmt: skip
+        elif "refit" in a:
             lines.append(f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the refit model's phase at "
                          f"the cycle by +{a['moved_s'] * 1e3:.1f} ms of delay beyond its class's "
                          f"(tau {a['identified'] * 1e3:.1f} ms, class {a['class'] * 1e3:.1f} ms)")  # fmt: skip

@@ -31,12 +31,12 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
-from uavsim.gap.iterate import BEYOND, READ_FROM, absorbed_by, analyse, decide
+from uavsim.gap.iterate import BEYOND, READ_FROM, TAKEN_IN, absorbed_by, analyse, decide
 
 CONDITIONS = ("true", "identified")
 
 #: linear effects an identified linear model can take in (answer ``absorbed`` or ``none`` counts for them)
-ABSORBABLE = ("delay", "lag", "gain", "lowpass")
+ABSORBABLE = TAKEN_IN
 
 
 def truth_label(t: dict) -> str:
@@ -114,8 +114,10 @@ def redecide(r: dict) -> dict:
         return r
     ident = r.get("identification")
     absorbed = absorbed_by(ident) if ident else None
+    # the first search's best candidate, as logged (an identified base model's only)
+    best = next((e for e, _ in r.get("ranking") or [] if e != "none"), None) if ident else None
     answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
-                    beyond=any(bool(r.get(k)) for k in BEYOND), actuator=bool(r.get("actuator")))
+                    beyond=any(bool(r.get(k)) for k in BEYOND), actuator=bool(r.get("actuator")), best=best)
     t = truth_of(r)
     return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
 
@@ -155,7 +157,8 @@ def summary(records: list[dict]) -> str:
                                  if f["name"] in (r.get("from_samples") or ()) else "")
                               for f in r.get("found") or [])  # fmt: skip
             if r["answer"] == "absorbed":
-                found = f"tau +{r['absorbed']['moved_s'] * 1e3:.1f} ms"
+                a = r["absorbed"] or {}
+                found = (f"best {a['best']['effect']}, " if "best" in a else "") + f"tau +{a.get('moved_s', 0.0) * 1e3:.1f} ms"
             gap = f"{r['gap_before']:.2f} -> {r['gap_after']:.2f}" if "gap_before" in r else r.get("error", "")
             right = "yes" if r["ok"] else ("one of two" if r.get("one_of_two") else "no")
             out.append(f"| {r['name']} | {r['kind']} | {r['loop']} | {r['truth']} | {r['answer']} | {found} | {gap} | "
