@@ -901,7 +901,7 @@ def format_flow(flow: FlowResult) -> str:
                          + f"; gap {b['gap_before']:.3f} -> {b['gap']:.3f}, too little to name it), which the "
                          "identified linear model takes in"
                          + (f"; its phase at the cycle moved +{a['moved_s'] * 1e3:.1f} ms beyond its class's"
-                            if a.get("moved_s") else ""))  # fmt: skip
+                            if a.get("moved_s", 0.0) > 0 else ""))  # fmt: skip
         elif "refit" in a:
             lines.append(f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the refit model's phase at "
                          f"the cycle by +{a['moved_s'] * 1e3:.1f} ms of delay beyond its class's "
