@@ -469,8 +469,10 @@ class GapEvaluator:
 
     def sims(self, cands: list[tuple[str, float]], seeds: int = 1) -> list[list[SimRun]]:
         """Per (candidate, seed), the simulated runs."""
-        plans = [Episode(i, name, float(v), s, self.tau_shift(name, float(v)), self.trimmed(name, float(v)))
-                 for name, v in cands for s in range(seeds) for i in range(self.R)]  # fmt: skip
+        plans = []
+        for name, v in cands:
+            shift, cut = self.anchored(name, float(v))
+            plans += [Episode(i, name, float(v), s, shift, cut) for s in range(seeds) for i in range(self.R)]
         return self.fly(plans)
 
     def fly(self, plans: list[Episode]) -> list[list[SimRun]]:
@@ -483,35 +485,36 @@ class GapEvaluator:
                        nthread=self.nthread, base_effects=self.base, dt=self.dt)  # fmt: skip
         return [out[k * self.R:(k + 1) * self.R] for k in range(len(plans) // self.R)]
 
-    def tau_shift(self, name: str, value: float) -> float:
-        """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
-        if not self.anchor_hz:
-            return 0.0
-        w = 2 * math.pi * self.anchor_hz
-        phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
-        return min(phase / w, float(self.model.tau))
-
-    def trimmed(self, name: str, value: float) -> ModelSpec | None:
-        """The model with its ``T_prop`` cut to take out the phase candidate ``name`` = ``value`` adds at
-        the anchor beyond what :meth:`tau_shift` takes out of ``tau``, ``K`` scaled to keep the model's gain
-        there; None when ``tau`` holds it all (or without an anchor, or on an outer loop).
+    def anchored(self, name: str, value: float) -> tuple[float, ModelSpec | None]:
+        """What candidate ``name`` = ``value`` takes out of the model where it adds phase at the anchor:
+        the part of ``tau`` (s) and, beyond what ``tau`` holds, the model with ``T_prop`` cut, ``K`` scaled to
+        keep the model's gain there (None when ``tau`` holds it all, without an anchor, or on an outer loop).
 
         A network's class can carry the cycle's lag in ``T_prop`` with ``tau`` near 0 (a low-pass's
         phase read as a slower propulsion): without the cut such a candidate adds its phase twice and
         cannot fly the cycle it explains. ``T_prop`` keeps at least :data:`T_PROP_KEEP` of itself.
         """
-        if not self.anchor_hz or self.session.loop not in INNER_LOOPS:
-            return None
+        if not self.anchor_hz:
+            return 0.0, None
         w = 2 * math.pi * self.anchor_hz
         phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
-        rest = phase - w * self.tau_shift(name, value)
         m = self.model
-        if not (rest > 1e-9 and m.T_prop > 0):
-            return None
+        shift = min(phase / w, float(m.tau))
+        rest = phase - w * shift
+        if self.session.loop not in INNER_LOOPS or not (rest > 1e-9 and m.T_prop > 0):
+            return shift, None
         tp = max(math.tan(max(math.atan(w * m.T_prop) - rest, 0.0)) / w, T_PROP_KEEP * m.T_prop)
         # the inner loops' T_prop is a first-order factor 1 / (T_prop s + 1): its gain at w moves with it
         k = m.K * math.hypot(1.0, w * tp) / math.hypot(1.0, w * m.T_prop)
-        return dataclasses.replace(m, K=k, T_prop=tp)
+        return shift, dataclasses.replace(m, K=k, T_prop=tp)
+
+    def tau_shift(self, name: str, value: float) -> float:
+        """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
+        return self.anchored(name, value)[0]
+
+    def trimmed(self, name: str, value: float) -> ModelSpec | None:
+        """The model with ``T_prop`` cut beyond what ``tau`` holds (:meth:`anchored`), or None."""
+        return self.anchored(name, value)[1]
 
     def calibrate(self, feats_by_seed: list[list[dict | None]], *, smoother: bool = True) -> None:
         """Set the noise scales (and, with ``smoother``, the sensor's smoothing offsets) from the
@@ -788,8 +791,7 @@ def run_gap(
         log(f"winner polished ({time.perf_counter() - t_start:.1f} s)")
         effects = [e for e in session.effects if e.name != effect]
         effects.append(EffectSpec(effect, dict(winner["params"])))
-        value = float(next(iter(winner["params"].values())))
-        shift, cut = ev.tau_shift(effect, value), ev.trimmed(effect, value)
+        shift, cut = ev.anchored(effect, float(next(iter(winner["params"].values()))))
         if shift:
             log(f"{effect} takes {shift * 1e3:.1f} ms of phase out of tau ({model.tau * 1e3:.1f} ms)")
             model = dataclasses.replace(model, tau=max(float(model.tau) - shift, 0.0))
