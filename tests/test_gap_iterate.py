@@ -623,7 +623,7 @@ def test_saturation_read_off_the_relay_amplitudes_is_named_when_the_base_model_f
     monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 6.0, ("saturation",): 3.0}))
     flown = []
     sat = EffectSpec("saturation", {"limit": 1.5})
-    monkeypatch.setattr(iterate, "read_off_relays", lambda s, meas, sims: flown.append(len(sims)) or [sat])
+    monkeypatch.setattr(iterate, "read_off_relays", lambda s, meas, sims, **kw: flown.append(len(sims)) or [sat])
     msgs = []
     flow = iterate.analyse(_identified(monkeypatch, 0.0), log=msgs.append)
     # the base model flown on the session's noise seeds, then the refit with the read limit in the loop
@@ -648,6 +648,32 @@ def test_saturation_read_off_the_relay_amplitudes_is_named_when_the_base_model_f
     monkeypatch.setattr(iterate, "refit_base", _refit_by_effects({(): 20.0, ("sample_hold",): 3.0}))
     flow = iterate.analyse(_identified(monkeypatch, 0.0, staircase=True))
     assert flown == [] and [d["evidence"] for d in flow.from_samples] == ["staircase"]
+
+
+def test_a_rate_limit_read_off_the_relay_periods_is_screened_then_named_when_the_refit_flies_better(monkeypatch):
+    calls = _script(monkeypatch, [("none", 3.0, 3.0)])
+    starts = []
+    refit = _refit_by_effects({(): 6.0, ("rate_limit",): 3.0})
+    monkeypatch.setattr(iterate, "refit_base", lambda s, m, **kw: starts.append(kw.get("starts")) or refit(s, m, **kw))
+    read = EffectSpec("rate_limit", {"rate": 100.0})
+    monkeypatch.setattr(iterate, "read_off_relays", lambda s, meas, sims, model=None: [read] if model else [])
+    screened = []
+
+    def screen(ev, shown, anchor_hz, anchor_h):
+        screened.append((shown, ev.scales is not None, anchor_hz))
+        return EffectSpec("rate_limit", {"rate": 60.0})
+
+    monkeypatch.setattr(iterate, "_rate_screened", screen)
+    msgs = []
+    flow = iterate.analyse(_identified(monkeypatch, 0.0, loop="altitude"), log=msgs.append)
+    # the balance's rate is screened on the calibrated model at the identified cycle (2 Hz), and the
+    # refit with the screened rate in the loop starts from the model with its phase taken out of tau
+    assert screened == [(read, True, 2.0)]
+    assert flow.answer == "named" and flow.to_json()["found"] == [{"name": "rate_limit", "rate": 60.0}]
+    assert [d["evidence"] for d in flow.from_samples] == ["relay periods"]
+    assert any(m.startswith("rate_limit read off the relay runs' periods (rate=60)") for m in msgs)
+    assert "rate_limit" not in calls[0]["candidates"]
+    assert starts[0] is None and [m.tau < 0.01 for m in starts[1]] == [True]
 
 
 def _steps_session(swing_out: tuple[float, float], steps=(0.06, 0.18), growth: float = 0.0) -> Session:

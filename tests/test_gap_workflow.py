@@ -457,6 +457,39 @@ def test_saturation_is_read_off_two_relay_runs_whose_cycles_grow_less_than_their
     assert dz.name == "dead_zone" and dz.params["width"] == pytest.approx(truth.params["width"], rel=0.15)
 
 
+def test_a_rate_limit_is_read_off_two_relay_runs_whose_period_grows_with_the_relay_amplitude():
+    import dataclasses
+
+    from uavsim.gap.workflow import (
+        RL_PERIOD_RATIO,
+        SEEDS,
+        GapEvaluator,
+        base_effects,
+        read_off_relays,
+    )
+
+    def read(effect, seed):
+        s, truth = hidden_session(seed, effect=effect, loop="altitude")
+        model = s.model
+        if truth.params.get("rate"):
+            # as identified from the smaller relay run: its tau holds that run's delay of the ramps' centre
+            model = dataclasses.replace(model, tau=model.tau + s.runs[0].spec.h / truth.params["rate"])
+        ev = GapEvaluator(s, model, base_effects(s), 0, 1, 0.001)
+        feats = [ev.features(f) for f in ev.sims([("none", 0.0)], seeds=SEEDS)]
+        return read_off_relays(s, ev.meas, feats, model=model), read_off_relays(s, ev.meas, feats), truth
+
+    # exact lumped loops with a slew limit, relays at h and 2 h: the larger cycle's period grows 1.14-1.16
+    # times beyond the model's, and the harmonic balance on the model gives the rate back
+    for seed in (1, 6):
+        got, without_model, truth = read("rate_limit", seed)
+        assert [e.name for e in got] == ["rate_limit"] and without_model == []
+        assert got[0].params["rate"] == pytest.approx(truth.params["rate"], rel=0.2)
+    # linear loops, clean, with a lag or a delay: their periods do not move with the amplitude
+    for effect, seed in (("none", 2), ("none", 4), ("lag", 2), ("delay", 3)):
+        assert read(effect, seed)[0] == []
+    assert RL_PERIOD_RATIO["attitude"] is None  # not studied there: never read on the attitude loops
+
+
 def test_saturation_read_needs_the_clipped_cycle_to_stay_symmetric():
     from types import SimpleNamespace
 

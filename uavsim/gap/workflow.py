@@ -65,11 +65,12 @@ from uavsim.gap.features import (
     worst_window,
 )
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
+from uavsim.lumped.frequency import mrft_prediction_batch
 from uavsim.lumped.params import INNER_LOOPS
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
-           "credited_gap", "read_model_file", "candidate_grid", "candidate_phase", "read_off_relays", "step_hunting"]
+           "credited_gap", "read_model_file", "candidate_grid", "candidate_phase", "read_off_relays", "rate_from_periods", "step_hunting"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -318,11 +319,20 @@ DZ_PERIOD_BAND = 1.1
 #: zones (at most 0.015) and backlashes (0.49-1.56); on altitude the camera swings every step run
 #: as much (dead zones 0.09-0.47), so no altitude dead zone is read (docs/results/gap-workflow.md)
 HUNT_SWING = 0.1
+#: per loop family, the larger relay run's period over the smaller's (measured over simulated) at or
+#: above which the loop's phase lag grows with the relay's amplitude, as a slew-rate limit's does
+#: (its ramps delay the square wave's centre by ``h / rate``), with the amplitude ratio at least 1
+#: (a saturation's falls). Development altitude sessions (seeds 410016-410928, identified models):
+#: rate-limit singles 1.19-1.54 (one limit too weak to show, 1.04), every other session with an
+#: amplitude ratio of 1 or more at most 1.04 (clean, lags, low-passes, dead zones). Not studied on
+#: the attitude loops (None: not read there).
+RL_PERIOD_RATIO: dict[str, float | None] = {"altitude": 1.12, "attitude": None}
 
 
 def read_off_relays(session: Session, meas: list[dict | None],
-                    sims: list[list[dict | None]]) -> list[EffectSpec]:
-    """A saturation or a dead zone, where two relay runs show the loop's gain moving with amplitude.
+                    sims: list[list[dict | None]], *, model: ModelSpec | None = None) -> list[EffectSpec]:
+    """A saturation or a dead zone, where two relay runs show the loop's gain moving with amplitude;
+    a rate limit, where they show its phase lag moving with amplitude.
 
     A relay's output is a square wave of amplitude ``h``; clipped at ``limit < h`` it is a
     square wave of amplitude ``limit``. A linear loop's relay cycle grows in proportion to ``h``
@@ -342,6 +352,12 @@ def read_off_relays(session: Session, meas: list[dict | None],
     do (:data:`HUNT_SWING`): play in the loop passes the square wave alike, and keeps the steps'
     PD loop hunting.
 
+    A slew-rate limit ramps each switch of the square wave over ``2 h / rate``: the wave's centre
+    comes ``h / rate`` late, a delay that grows with ``h``, so the larger run's period grows
+    beyond the model's. Read, with the base ``model`` given, where the period ratio is at least
+    :data:`RL_PERIOD_RATIO` of the loop's family with ``r`` at least 1 (:func:`rate_from_periods`
+    gives the rate).
+
     Parameters
     ----------
     session : Session
@@ -349,11 +365,13 @@ def read_off_relays(session: Session, meas: list[dict | None],
         The measured runs' features (:func:`uavsim.gap.features.run_features`).
     sims : list of list of dict or None
         Per noise seed, the base model's simulated runs' features, length R each.
+    model : ModelSpec, optional
+        The base model flown in ``sims``: without it no rate limit is read.
 
     Returns
     -------
     list of EffectSpec
-        ``[saturation]``, ``[dead_zone]`` or empty.
+        ``[saturation]``, ``[dead_zone]``, ``[rate_limit]`` or empty.
     """
     runs = [i for i, r in enumerate(session.runs) if r.spec.kind != STEP_RUN and r.spec.h
             and meas[i] is not None and all(f[i] is not None for f in sims)]  # fmt: skip
@@ -378,7 +396,41 @@ def read_off_relays(session: Session, meas: list[dict | None],
         return [EffectSpec("saturation", {"limit": r * h_l})]
     if r >= DZ_AMP_RATIO and period <= math.log(DZ_PERIOD_BAND) and step_hunting(session, meas, sims) <= HUNT_SWING:
         return [EffectSpec("dead_zone", {"width": h_l * h_s * (r - 1.0) / (r * h_l - h_s)})]
+    limit = RL_PERIOD_RATIO["altitude" if session.loop == "altitude" else "attitude"]
+    longer = math.exp(shift("period"))
+    if model is not None and limit is not None and r >= 1.0 and longer >= limit:
+        rate = rate_from_periods(model, session.loop, float(specs[i].beta), h_s, h_l, longer)
+        if rate is not None:
+            return [EffectSpec("rate_limit", {"rate": rate})]
     return []
+
+
+def rate_from_periods(model: ModelSpec, loop: str, beta: float, h_small: float, h_large: float,
+                      ratio: float) -> float | None:
+    """The slew rate (command units per s) that lengthens ``model``'s relay cycle at ``h_large`` over its
+    cycle at ``h_small`` by ``ratio`` (harmonic balance), or None where no rate in range does.
+
+    The limit is taken as the delay of the ramped square wave's centre, ``h / rate``; the model's
+    ``tau`` is taken to hold that delay at ``h_small`` already (an identified model put the smaller
+    run's phase there), down to 0.
+    """
+    fam = "altitude" if loop == "altitude" else "attitude"
+    p = {"K": model.K, "T_prop": model.T_prop, "T1": model.T1}
+    w0, _ = mrft_prediction_batch(fam, beta, h_small, tau=np.array([float(model.tau)]), **p)
+    if not np.isfinite(w0[0]):
+        return None
+    # the larger run's delay up to a quarter of the cycle: beyond it, its ramps fill the half period
+    d_l = np.geomspace(1e-4, 0.5 * math.pi / float(w0[0]), 96)
+    d_s = d_l * h_small / h_large
+    tau0 = np.maximum(float(model.tau) - d_s, 0.0)
+    w_s, _ = mrft_prediction_batch(fam, beta, h_small, tau=tau0 + d_s, **p)
+    w_l, _ = mrft_prediction_batch(fam, beta, h_large, tau=tau0 + d_l, **p)
+    got = w_s / w_l  # the period ratio, growing with the delay
+    ok = np.isfinite(got) & (got >= np.fmax.accumulate(np.where(np.isfinite(got), got, 0.0)))
+    if not ok.any() or not got[ok].min() <= ratio <= got[ok].max():
+        return None
+    d = float(np.exp(np.interp(math.log(ratio), np.log(got[ok]), np.log(d_l[ok]))))
+    return h_large / d
 
 
 def step_hunting(session: Session, meas: list[dict | None], sims: list[list[dict | None]]) -> float:
