@@ -396,9 +396,11 @@ def read_off_relays(session: Session, meas: list[dict | None],
         return [EffectSpec("saturation", {"limit": r * h_l})]
     if r >= DZ_AMP_RATIO and period <= math.log(DZ_PERIOD_BAND) and step_hunting(session, meas, sims) <= HUNT_SWING:
         return [EffectSpec("dead_zone", {"width": h_l * h_s * (r - 1.0) / (r * h_l - h_s)})]
+    if model is None or r < 1.0:
+        return []
     limit = RL_PERIOD_RATIO["altitude" if session.loop == "altitude" else "attitude"]
     longer = math.exp(shift("period"))
-    if model is not None and limit is not None and r >= 1.0 and longer >= limit:
+    if limit is not None and longer >= limit:
         rate = rate_from_periods(model, session.loop, float(specs[i].beta), h_s, h_l, longer)
         if rate is not None:
             return [EffectSpec("rate_limit", {"rate": rate})]
