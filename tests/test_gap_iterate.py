@@ -659,8 +659,8 @@ def test_a_rate_limit_read_off_the_relay_periods_is_screened_then_named_when_the
     monkeypatch.setattr(iterate, "read_off_relays", lambda s, meas, sims, model=None: [read] if model else [])
     screened = []
 
-    def screen(ev, shown, anchor_hz, anchor_h):
-        screened.append((shown, ev.scales is not None, anchor_hz))
+    def screen(ev, shown):
+        screened.append((shown, ev.scales is not None, ev.anchor_hz))
         return EffectSpec("rate_limit", {"rate": 60.0})
 
     monkeypatch.setattr(iterate, "_rate_screened", screen)

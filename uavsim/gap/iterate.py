@@ -102,7 +102,7 @@ from uavsim.gap.residual import (
     steps_keep_swinging,
     third_harmonic_rise,
 )
-from uavsim.gap.simulate import Episode, SimRun
+from uavsim.gap.simulate import SimRun
 from uavsim.gap.workflow import (
     CANDIDATES,
     NAME_RATIO,
@@ -118,6 +118,7 @@ from uavsim.gap.workflow import (
     read_off_relays,
     read_off_samples,
     run_gap,
+    take_out_phase,
 )
 from uavsim.lumped.frequency import unwrapped_phase_batch
 from uavsim.noise.estimate import white_std
@@ -483,16 +484,12 @@ def class_starts(ident: dict, model: ModelSpec) -> list[ModelSpec]:
                                 T1=float(m["T1"][k]), tau=float(m["tau"][k])) for k in np.flatnonzero(ok)]
 
 
-def _rate_screened(ev: GapEvaluator, shown: EffectSpec, anchor_hz: float | None, anchor_h: float) -> EffectSpec:
-    """The rate limit read off the relay periods at the best-flying of :data:`RATE_SCREEN` x its rate, each
-    flown on ``ev``'s model with the rate limit's phase at the identified cycle taken out of its lags
-    (:func:`phase_freed`); ``ev`` calibrated."""
+def _rate_screened(ev: GapEvaluator, shown: EffectSpec) -> EffectSpec:
+    """The rate limit read off the relay periods at the best-flying of :data:`RATE_SCREEN` x its rate, each a
+    candidate of ``ev`` (calibrated; with its anchor, the phase comes out of the model's lags)."""
     rates = [float(shown.params["rate"]) * f for f in RATE_SCREEN]
-    models = [phase_freed(ev.model, [EffectSpec("rate_limit", {"rate": v})], anchor_hz, h=anchor_h,
-                          rate_hz=ev.session.control_rate_hz) if anchor_hz else ev.model for v in rates]
-    plans = [Episode(i, "rate_limit", v, s, model=m) for v, m in zip(rates, models, strict=True)
-             for s in range(SEEDS) for i in range(ev.R)]
-    gaps = np.array([ev.gap(ev.features(runs)) for runs in ev.fly(plans)]).reshape(len(rates), SEEDS).mean(axis=1)
+    flown = ev.sims([("rate_limit", v) for v in rates], seeds=SEEDS)
+    gaps = np.array([ev.gap(ev.features(runs)) for runs in flown]).reshape(len(rates), SEEDS).mean(axis=1)
     return EffectSpec("rate_limit", {"rate": rates[int(np.argmin(gaps))]})
 
 
@@ -505,17 +502,11 @@ def phase_freed(model: ModelSpec, effects: list[EffectSpec], freq_hz: float, *, 
     rest out of ``T_prop``, whose gain at the cycle ``K`` keeps; the model flies the same cycle with
     the effects in the loop. Effects without a phase leave it as it is.
     """
-    w = 2 * math.pi * freq_hz
     phase = sum(candidate_phase(e.name, float(e.params[EFFECT_PARAMS[e.name][0]]), freq_hz, h, rate_hz) for e in effects)
     if phase <= 0:
         return model
-    cut = min(phase / w, float(model.tau))
-    rest = phase - cut * w
-    if rest <= 0:
-        return dataclasses.replace(model, tau=float(model.tau) - cut)
-    t_prop = max(math.tan(max(math.atan(w * model.T_prop) - rest, 0.0)) / w, 1e-4)
-    k = model.K * math.hypot(1.0, w * t_prop) / math.hypot(1.0, w * model.T_prop)
-    return dataclasses.replace(model, K=k, T_prop=t_prop, tau=0.0)
+    cut, trimmed = take_out_phase(model, phase, 2 * math.pi * freq_hz, t_prop_min=1e-4)
+    return dataclasses.replace(trimmed or model, tau=float(model.tau) - cut)
 
 
 def _phase_lag(p: dict, w: float) -> float:
@@ -743,7 +734,7 @@ def analyse(
         fit = refit_base(live, model, seed=seed, nthread=nthread, log=log, starts=starts)
         ident["refit"] = fit.to_json()
         shown, evidence = read_off_samples(live, live.control_rate_hz), "staircase"
-        without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001)
+        without = GapEvaluator(live, fit.model, base_effects(live), seed, nthread, 0.001, anchor_hz, anchor_h)
         flown: list[list[SimRun]] = []
         if not shown:
             flown = without.sims([("none", 0.0)], seeds=SEEDS)
@@ -752,7 +743,7 @@ def analyse(
             evidence = "relay periods" if [e.name for e in shown] == ["rate_limit"] else "relay amplitudes"
             if evidence == "relay periods":
                 without.calibrate(feats)
-                shown = [_rate_screened(without, shown[0], anchor_hz, anchor_h)]
+                shown = [_rate_screened(without, shown[0])]
         if shown:
             # the identified model was fitted to the effect's doing (a staircase, a clipped cycle): refitted with
             # its cause in the loop, it moves to the vehicle's lumped model, where a gap search from the model

@@ -66,11 +66,12 @@ from uavsim.gap.features import (
 )
 from uavsim.gap.simulate import Episode, SimRun, model_params, simulate
 from uavsim.lumped.frequency import mrft_prediction_batch
-from uavsim.lumped.params import INNER_LOOPS
+from uavsim.lumped.params import INNER_LOOPS, loop_family
 from uavsim.model.effects import vocabulary
 
 __all__ = ["CANDIDATES", "GapResult", "GapEvaluator", "UnflownRun", "base_effects", "run_gap", "format_table", "ruled_out", "read_off_samples",
-           "credited_gap", "read_model_file", "candidate_grid", "candidate_phase", "read_off_relays", "rate_from_periods", "step_hunting"]
+           "credited_gap", "read_model_file", "candidate_grid", "candidate_phase", "take_out_phase", "read_off_relays", "rate_from_periods",
+           "step_hunting"]
 
 #: candidate effects, in the vocabulary's order (a live view of the registered vocabulary effects)
 CANDIDATES = vocabulary.NAMES
@@ -116,6 +117,30 @@ def candidate_phase(name: str, value: float, freq_hz: float, h: float = 0.0, rat
     if term.identity_is_rate and rate_hz:
         phase = max(phase - float(term.phase(rate_hz, freq_hz, h)), 0.0)
     return phase
+
+
+def take_out_phase(model: ModelSpec, phase: float, w: float, *, t_prop_min: float) -> tuple[float, ModelSpec | None]:
+    """Take ``phase`` (rad, at ``w`` rad/s) out of an identified inner-loop model's lags: ``tau`` first,
+    then ``T_prop``.
+
+    The first-order factor ``1 / (T_prop s + 1)`` gets shorter down to ``t_prop_min`` (s), and ``K``
+    is scaled so that the model's gain at ``w`` stays the same.
+
+    Returns
+    -------
+    tau_cut : float
+        What comes off ``tau``, s (at most ``tau``).
+    trimmed : ModelSpec or None
+        The model with ``T_prop`` and ``K`` moved (its ``tau`` as it was), or None when ``tau`` holds
+        the whole phase.
+    """
+    cut = min(phase / w, float(model.tau))
+    rest = phase - w * cut
+    if not (rest > 1e-9 and model.T_prop > 0):
+        return cut, None
+    tp = max(math.tan(max(math.atan(w * model.T_prop) - rest, 0.0)) / w, t_prop_min)
+    k = model.K * math.hypot(1.0, w * tp) / math.hypot(1.0, w * model.T_prop)
+    return cut, dataclasses.replace(model, K=k, T_prop=tp)
 
 
 class UnflownRun(UserError):
@@ -398,7 +423,7 @@ def read_off_relays(session: Session, meas: list[dict | None],
         return [EffectSpec("dead_zone", {"width": h_l * h_s * (r - 1.0) / (r * h_l - h_s)})]
     if model is None or r < 1.0:
         return []
-    limit = RL_PERIOD_RATIO["altitude" if session.loop == "altitude" else "attitude"]
+    limit = RL_PERIOD_RATIO.get(loop_family(session.loop))
     longer = math.exp(shift("period"))
     if limit is not None and longer >= limit:
         rate = rate_from_periods(model, session.loop, float(specs[i].beta), h_s, h_l, longer)
@@ -416,7 +441,7 @@ def rate_from_periods(model: ModelSpec, loop: str, beta: float, h_small: float, 
     ``tau`` is taken to hold that delay at ``h_small`` already (an identified model put the smaller
     run's phase there), down to 0.
     """
-    fam = "altitude" if loop == "altitude" else "attitude"
+    fam = loop_family(loop)
     p = {"K": model.K, "T_prop": model.T_prop, "T1": model.T1}
     w0, _ = mrft_prediction_batch(fam, beta, h_small, tau=np.array([float(model.tau)]), **p)
     if not np.isfinite(w0[0]):
@@ -552,15 +577,9 @@ class GapEvaluator:
             return 0.0, None
         w = 2 * math.pi * self.anchor_hz
         phase = candidate_phase(name, value, self.anchor_hz, self.anchor_h, self.session.control_rate_hz)
-        m = self.model
-        shift = min(phase / w, float(m.tau))
-        rest = phase - w * shift
-        if self.session.loop not in INNER_LOOPS or not (rest > 1e-9 and m.T_prop > 0):
-            return shift, None
-        tp = max(math.tan(max(math.atan(w * m.T_prop) - rest, 0.0)) / w, T_PROP_KEEP * m.T_prop)
-        # the inner loops' T_prop is a first-order factor 1 / (T_prop s + 1): its gain at w moves with it
-        k = m.K * math.hypot(1.0, w * tp) / math.hypot(1.0, w * m.T_prop)
-        return shift, dataclasses.replace(m, K=k, T_prop=tp)
+        shift, cut = take_out_phase(self.model, phase, w, t_prop_min=T_PROP_KEEP * self.model.T_prop)
+        # only the inner loops' T_prop is a first-order factor whose phase take_out_phase moves
+        return shift, cut if self.session.loop in INNER_LOOPS else None
 
     def tau_shift(self, name: str, value: float) -> float:
         """What candidate ``name`` = ``value`` takes off the model's ``tau`` (0 without an anchor), s."""
