@@ -480,10 +480,19 @@ def test_noise_is_named_from_its_level_where_the_gap_cannot_show_it(monkeypatch)
     assert "noise" not in calls[0]["candidates"]  # the model already carries it: not searched again
     assert any(m.startswith("noise named from its level") for m in msgs)
     assert "from its level" in iterate.format_flow(flow)
-    # under the level, the same session names nothing and the search may try noise
+    # under the level the same session names nothing, and the search does not try noise either: the level
+    # decides it on this family, so a noise the search proposed would only take up the base model's misfit
     calls = _script(monkeypatch, [("none", 2.0, 2.0)])
     flow = iterate.analyse(_identified(monkeypatch, 0.5 * level))
-    assert flow.answer == "none" and flow.found == [] and "noise" in calls[0]["candidates"]
+    assert flow.answer == "none" and flow.found == [] and "noise" not in calls[0]["candidates"]
+    # where the level cannot decide (a staircase's steps in the std; altitude, whose clean levels overlap a
+    # noise source's) the search keeps its noise candidate
+    calls = _script(monkeypatch, [("none", 2.0, 2.0)])
+    iterate.analyse(_identified(monkeypatch, 0.5 * level, staircase=True))
+    assert "noise" in calls[0]["candidates"]
+    calls = _script(monkeypatch, [("none", 2.0, 2.0)])
+    flow = iterate.analyse(_identified(monkeypatch, 1.0, loop="altitude"))
+    assert flow.found == [] and "noise" in calls[0]["candidates"]
 
 
 def test_noise_by_level_is_off_on_a_staircase_and_where_clean_sessions_overlap(monkeypatch):
