@@ -125,6 +125,7 @@ from uavsim.gap.workflow import (
     take_out_phase,
 )
 from uavsim.lumped.frequency import unwrapped_phase_batch
+from uavsim.lumped.params import loop_family
 from uavsim.noise.estimate import white_std
 
 __all__ = [
@@ -369,15 +370,11 @@ class FlowResult:
         return out
 
 
-def family(loop: str) -> str:
-    return "altitude" if loop == "altitude" else "attitude"
-
-
 def floors_of(loop: str, actuator: bool = False) -> str:
     """The key of :data:`NONE_GAP`, :data:`CLEAN_GAP` and :data:`CLEAN_REMOVAL` for a session of ``loop``: its
     family, with ``+actuator`` where the session states its actuators' range (its simulation clips the
     command, so its clean misfit and what each candidate removes from it are others)."""
-    return family(loop) + ("+actuator" if actuator else "")
+    return loop_family(loop) + ("+actuator" if actuator else "")
 
 
 def live_runs(session: Session) -> tuple[Session, list[str]]:
@@ -578,7 +575,7 @@ def _noise_by_level(model: ModelSpec, loop: str, *, staircase: bool,
     """:func:`noise_by_level` with the reason it names the noise, as the log says it."""
     if staircase:
         return None
-    fam = family(loop)
+    fam = loop_family(loop)
     level, share = NOISE_STD[fam], WHITE_SHARE[fam]
     std = float(model.noise_std or 0.0)
     if level is not None and std > level:
@@ -798,7 +795,7 @@ def analyse(
             by_level, why = named
             log(f"noise named from its level: {why}; the gap cannot show it (the model carries it)")
         # a staircase has its own steps in the std: there the search is left to find a noise
-        level_decides = NOISE_STD[family(session.loop)] is not None and not staircase
+        level_decides = NOISE_STD[loop_family(session.loop)] is not None and not staircase
     if by_level is not None:
         found.append(by_level)
     if by_level is not None or level_decides:
@@ -862,8 +859,9 @@ def analyse(
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
-    limit, ring_limit = PERIOD_SPREAD[family(session.loop)], THIRD_RISE[family(session.loop)]
-    beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[family(session.loop)] else None,
+    fam = loop_family(session.loop)
+    limit, ring_limit = PERIOD_SPREAD[fam], THIRD_RISE[fam]
+    beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[fam] else None,
               "wander": periods_wander(live, limit) if limit is not None else None,
               "ring": third_harmonic_rise(residual, ring_limit) if ring_limit is not None else None}
     for key, sign in beyond.items():
