@@ -53,3 +53,25 @@ def test_the_family_keeps_the_true_class_table_pd_and_backs_an_aggressive_one_of
         hot = lag_family_scale(b, p, first[j], second[j], kp=2.5 * float(t["kp"][0]), kd=2.5 * float(t["kd"][0]),
                                **kw)
         assert hot["scale"] < 0.6 and hot["scale"] in GUARD_SCALES
+
+
+def test_a_pd_of_the_wrong_shape_is_held_nowhere_and_refused_where_the_loop_says():
+    from uavsim.ident.gains import table_gains
+    from uavsim.ident.guard import GUARD_SCALES
+    from uavsim.ident.lagfamily import UNHELD_REFUSAL, lag_family_scale, unheld_refusal
+
+    g, b, cs, truth, (first, second) = _two_runs("attitude", 4)
+    for j, c in enumerate(cs):
+        p = np.full(g.n, 1.0 / g.n)
+        t = table_gains(b, [c], [truth["K"][j]])
+        kw = {"derivative_filter_hz": float(t["derivative_filter_hz"][0]), "scales": GUARD_SCALES}
+        kept = lag_family_scale(b, p, first[j], second[j], kp=float(t["kp"][0]), kd=float(t["kd"][0]), **kw)
+        assert kept["held_nowhere"] == 0.0
+        assert unheld_refusal("attitude", kept, cls=c) is None
+        # four times the gain with a tenth of the derivative: half of it is still unstable on these lags
+        wrong = lag_family_scale(b, p, first[j], second[j], kp=4.0 * float(t["kp"][0]),
+                                 kd=0.1 * float(t["kd"][0]), **kw)
+        assert wrong["held_nowhere"] >= UNHELD_REFUSAL["attitude"]
+        why = unheld_refusal("attitude", wrong, cls=c, first_spread=1.5)
+        assert why is not None and f"class {c}'s PD" in why and "1.5 times" in why
+        assert unheld_refusal("altitude", wrong) is None  # a loop not named never refuses so

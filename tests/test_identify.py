@@ -165,7 +165,7 @@ def test_refuses_other_beta(setup, tmp_path):
         identify_session(_variant(setup, tmp_path, "beta", beta), models=setup["model"])
 
 
-def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
+def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path, monkeypatch):
     """A session with a second NP-MRFT run at beta -0.3 of the same process: identification with
     ``second_run`` answers the same class, says which run gave the second point and its frequency
     (the slower cycle), and refuses a missing run or one at the network's beta in one line."""
@@ -209,6 +209,13 @@ def test_a_second_run_at_another_beta_weighs_the_belief(setup, tmp_path):
         identify_session(path, models=setup["model"], second_run="nope.csv")
     with pytest.raises(UserError, match="another beta"):
         identify_session(path, models=setup["model"], second_run="relay.csv")
+    # a loop whose lag family refuses a PD held nowhere: at a limit of 0 every answer is refused, in one line
+    import uavsim.ident.lagfamily as lagfamily
+
+    monkeypatch.setitem(lagfamily.UNHELD_REFUSAL, "altitude", 0.0)
+    with pytest.raises(UserError, match=f"class {TRUE}'s PD is unstable at every back-off on 0 % of the models"):
+        identify_session(path, models=setup["model"], second_run="relay_b030.csv")
+    assert identify_session(path, models=setup["model"], second_run=None)["gains"] == one["gains"]
 
 
 def test_a_trimmed_relay_run_is_read_by_its_states(setup, tmp_path):

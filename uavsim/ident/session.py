@@ -28,7 +28,9 @@ From a session (``uavsim-session/2`` or 1) with an ``np-mrft`` (or ``mrft``) run
    point (``params``: what ``write_model`` stores and the gap workflow simulates).
 
 A session without a usable oscillation is an error (``NoOscillation``, a
-``UserError``), never a guess. A lateral session whose network run is refused but whose
+``UserError``), never a guess; so is, on attitude, a class whose PD the models both relay
+runs allow reject at every back-off (``uavsim.ident.lagfamily.unheld_refusal``: the runs
+disagree, one cycle moved by noise). A lateral session whose network run is refused but whose
 second run holds a steady cycle is answered from that run alone
 (``identify_second_point``: the family's PD, no class).
 
@@ -75,6 +77,7 @@ from uavsim.ident.gains import (
     table_gains,
 )
 from uavsim.ident.guard import answer_guard, default_guard
+from uavsim.ident.lagfamily import unheld_refusal
 from uavsim.ident.secondnet import (
     SecondReading,
     first_weight,
@@ -210,6 +213,10 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                           kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
                           attitude=attitude, first=f, second=second,
                           p_network=softmax(act_net, bundle.temperature)[0])
+        why = None if "lag_family" not in gd else unheld_refusal(bundle.loop, gd["lag_family"], cls=c,
+                                                                   first_spread=unsteady_spread(f))
+        if why is not None:
+            raise NoOscillation(why)
         s = gd["scale"]
         ans["guard"] = {**gd, "latency_ms": 1e3 * (time.perf_counter() - t0)}
         ans["gains"] = {**ans["gains"], "kp": s * ans["gains"]["kp"], "kd": s * ans["gains"]["kd"]}
