@@ -33,10 +33,17 @@ decision (both: a lower noise-free tail, a higher noisy one), its points' uncert
 and ``LAG_MEMBERS x len(GUARD_SCALES)`` closed loops, about 6 ms on one thread (``uavsim bench
 infer``'s ``identification_two_points`` 7.0 -> 13.3 ms median, altitude), off the table's real-time path.
 
+**A PD held nowhere** (``unheld_refusal``): a member on which the answer's PD is unstable under every
+factor has no best factor and drops out of that cost, so the family could ask a mild factor of a PD most
+of it rejects. Its weight share (``held_nowhere``) is kept instead, and on the loops of
+``UNHELD_REFUSAL`` an answer with too much of it is refused: its PD has the shape of a class the two
+points do not allow (one run's cycle moved by noise), and no factor mends a shape.
+
     from uavsim.ident.guard import GUARD_SCALES
-    from uavsim.ident.lagfamily import lag_family_scale
+    from uavsim.ident.lagfamily import lag_family_scale, unheld_refusal
     g = lag_family_scale(bundle, p, f, f2, kp=kp, kd=kd, derivative_filter_hz=fhz, scales=GUARD_SCALES)
-    g["scale"], g["members"]
+    g["scale"], g["members"], g["held_nowhere"]
+    unheld_refusal(bundle.loop, g)        # None, or why the answer is refused
 """
 
 from __future__ import annotations
