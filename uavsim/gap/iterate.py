@@ -785,6 +785,7 @@ def analyse(
         model = fit.model
     steps: list[GapResult] = []
     cur, cur_model = live, model
+    fam = loop_family(session.loop)
     by_level, level_decides = None, False
     if source == "identified":
         white = float(np.median([white_std(r.data.y) for r in live.runs]))
@@ -795,7 +796,7 @@ def analyse(
             by_level, why = named
             log(f"noise named from its level: {why}; the gap cannot show it (the model carries it)")
         # a staircase has its own steps in the std: there the search is left to find a noise
-        level_decides = NOISE_STD[loop_family(session.loop)] is not None and not staircase
+        level_decides = NOISE_STD[fam] is not None and not staircase
     if by_level is not None:
         found.append(by_level)
     if by_level is not None or level_decides:
@@ -859,7 +860,6 @@ def analyse(
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
     residual = residual_character(live, final.sims_after)
-    fam = loop_family(session.loop)
     limit, ring_limit = PERIOD_SPREAD[fam], THIRD_RISE[fam]
     beyond = {"play": steps_keep_swinging(live) if PLAY_LOOPS[fam] else None,
               "wander": periods_wander(live, limit) if limit is not None else None,

@@ -22,8 +22,9 @@ own. The figure is
 both exact sampled step ISEs at the table's rate (``uavsim.lumped.sampled``;
 optimum from ``uavsim.tuning.optimal.optimal_gains``, the answer with its own
 derivative filter). A refusal (no usable oscillation, a period or phase no
-class gives, an attitude PD the models of both runs reject at every back-off) is a failure: ``J = inf`` in the median and p95, counted apart;
-an unstable answer is ``inf`` and counted. ``max`` is over the answers given.
+class gives, an attitude PD the models of both runs reject at every back-off) is
+a failure: ``J = inf`` in the median and p95, counted apart; an unstable answer
+is ``inf`` and counted. ``max`` is over the answers given.
 
 In the same run, on the same episodes (controls and alternatives):
 

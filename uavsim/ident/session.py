@@ -213,8 +213,8 @@ def identify_cycle(f: CycleFeatures, bundle: ModelBundle, *, optimum: str = "nev
                           kd=float(g_tab["kd"][0]), derivative_filter_hz=float(g_tab["derivative_filter_hz"][0]),
                           attitude=attitude, first=f, second=second,
                           p_network=softmax(act_net, bundle.temperature)[0])
-        why = None if "lag_family" not in gd else unheld_refusal(bundle.loop, gd["lag_family"], cls=c,
-                                                                   first_spread=unsteady_spread(f))
+        lag = gd.get("lag_family")
+        why = None if lag is None else unheld_refusal(bundle.loop, lag, cls=c, first_spread=unsteady_spread(f))
         if why is not None:
             raise NoOscillation(why)
         s = gd["scale"]
