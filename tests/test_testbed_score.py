@@ -17,7 +17,7 @@ def _truth(tmp_path, kind="single", effects=({"name": "noise", "params": {"std":
 class _Flow:
     answer = "named"
     gap_before = gap_after = 2.5
-    absorbed = None
+    absorbed = moved = None
     dropped: list = []
     residual = {"summary": ""}
     identification = None

@@ -5,9 +5,10 @@ Simulates every run of the session with the session's ``[model]`` (or
 relay run, saying so) on the MuJoCo loop, compares with the measured runs on
 features that separate effects, fits every candidate effect of the
 vocabulary, adds the one that closes most of the gap and searches again (two
-effects at most); answers ``named``, ``none``, ``absorbed`` (a linear effect
-the identified model took in) or ``unexplained`` (with what the residual looks
-like). Prints a table (or JSON with ``--json``); ``--report DIR`` writes
+effects at most; from an identified model, one by the search beside those read
+off the runs or the noise's level); answers ``named``, ``none``, ``absorbed`` (a
+linear effect the identified model took in) or ``unexplained`` (with what the
+residual looks like). Prints a table (or JSON with ``--json``); ``--report DIR`` writes
 before/after overlays for every run, the ranking, the residual, a Rerun
 recording and the updated model; ``--write`` adds the effects to the
 session's ``[[effects]]``.

@@ -20,7 +20,8 @@
    exclude: :func:`uavsim.gap.workflow.ruled_out`); when the best removes at least
    :data:`NAME_SHARE` of the gap it is added to the model's effects and the
    search runs again on what is left, up to :data:`MAX_EFFECTS` effects
-   (:func:`accepts`). An identified base model has its own misfit, which a
+   (:func:`accepts`; with an identified base model the search names
+   :data:`IDENTIFIED_SEARCHES`, beside those read off the runs or the level). An identified base model has its own misfit, which a
    clean session shows (:data:`CLEAN_GAP`) and some candidates partly remove
    (:data:`CLEAN_REMOVAL`): there a gap beyond :data:`NONE_GAP` names the
    candidate that removes :data:`NAME_EXCESS` of what lies beyond a clean
@@ -56,10 +57,9 @@
 4. **Decision.** ``named`` (one or two effects), or when nothing was named:
    ``none`` when the gap is within :data:`NONE_GAP` of the loop family (set on
    clean sessions of the testbed vehicle, development seeds; a session that states
-   its actuators' range has floors of its own, :func:`floors_of`), ``absorbed``
-   when it is and the identified (refitted) model shows a phase lag at the
-   cycle beyond its class's (a linear delay, lag or low-pass moved ``tau`` or
-   the lags: reported with the move), or when it is not and the search's best
+   its actuators' range has floors of its own, :func:`floors_of`; a phase lag the
+   identified, refitted model shows at the cycle beyond its class's is shown with it,
+   ``FlowResult.moved``), ``absorbed`` when it is not and the search's best
    candidate is a linear effect (:data:`TAKEN_IN`: the identified linear model took
    it in, imperfectly), else ``unexplained`` with the residual's character
    (:mod:`uavsim.gap.residual`). Step runs that keep swinging at one size whatever their
@@ -150,11 +150,19 @@ __all__ = [
     "WHITE_SHARE",
     "BEYOND",
     "TAKEN_IN",
+    "IDENTIFIED_SEARCHES",
     "best_candidate",
 ]
 
 #: most effects added one after the other
 MAX_EFFECTS = 2
+#: with an identified base model, the most effects the gap search names; those read off the samples or
+#: the relay runs, or named from the noise's level, come beside them (up to :data:`MAX_EFFECTS`). One: on the
+#: spent held-out sets 220000-240063 (192 sessions) a second search named an effect 10 times and each one was
+#: false (a rate limit beside a bias, a dead zone or a hold beside a low-pass, a bias beside a saturation);
+#: what the first effect leaves is mostly the identified model's own misfit, of which any candidate takes a
+#: share. The pairs named right there had their second effect read off the runs or named from its level
+IDENTIFIED_SEARCHES = 1
 #: an effect is added when it removes at least this share of the gap that is left
 NAME_SHARE = 0.6
 #: the single search proposes its best candidate when that leaves at most this share of
@@ -287,8 +295,11 @@ class FlowResult:
     dropped : list of str
         Runs left out because the measurement holds no analysable cycle.
     absorbed : dict or None
-        ``{"parameter", "identified", "class", "moved_s", "effects"}``: the linear
-        effects the identified model may have absorbed and the parameter they moved.
+        With ``absorbed``: ``{"parameter", "identified", "class", "moved_s", "effects", "best"}``, the
+        linear effect the identified model took in (the search's best candidate) and the phase it moved.
+    moved : dict or None
+        With ``none``: :func:`absorbed_by`'s reading where the identified model's phase at the cycle lies
+        beyond its class's, shown but not an answer (a class the refit corrected moves it as far).
     residual : dict
         :func:`uavsim.gap.residual.residual_character` of what the final model leaves (its ``third_rise``
         kept whether or not it is beyond :data:`THIRD_RISE`), with :data:`BEYOND`'s ``play``, ``wander``
@@ -323,6 +334,7 @@ class FlowResult:
     gap_before: float
     gap_after: float
     seconds: float
+    moved: dict | None = None
     session: Session | None = field(default=None, repr=False)
     by_level: list[str] = field(default_factory=list)
     from_samples: list[dict] = field(default_factory=list)
@@ -352,6 +364,7 @@ class FlowResult:
                 "identification": self.identification,
                 "dropped_runs": self.dropped,
                 "absorbed": self.absorbed,
+                "moved": self.moved,
                 "residual": self.residual,
                 "steps": [
                     {
@@ -530,6 +543,9 @@ def absorbed_by(ident: dict | None, *, any_move: bool = False) -> dict | None:
     is compared with :data:`ABSORB_REFIT_SHARE` of the period, and the refit's
     moves are reported with it. ``any_move``: the move whatever its size (a gap's
     linear best candidate already says the model took an effect in).
+
+    Alone, the reading does not make an answer ``absorbed`` (:func:`decide`): a class the
+    network missed, which the refit corrects, moves the phase as far.
     """
     if not ident or "class_params" not in ident or "tau" not in ident.get("class_params", {}):
         return None
@@ -635,19 +651,24 @@ def declined(res: GapResult, model: ModelSpec) -> GapResult:
                                effects=list(res.effects[:-1]), sims_after=res.sims_before)  # fmt: skip
 
 
-def decide(named: bool, gap_before: float, loop: str, absorbed: dict | None, beyond: bool = False, *,
+def decide(named: bool, gap_before: float, loop: str, beyond: bool = False, *,
            actuator: bool = False, best: str | None = None) -> str:
     """The answer's kind: ``named`` when an effect was added, ``unexplained`` when the runs show what no
     vocabulary effect flies (``beyond``: steps that hunt, cycles that wander or ring), else by the base model's
-    gap and the identification: within the floor ``none`` or ``absorbed``; above it ``absorbed`` when the
-    search's best candidate ``best`` (an identified base model's) is a linear effect (:data:`TAKEN_IN`), else
-    ``unexplained``."""
+    gap: within the floor ``none``; above it ``absorbed`` when the search's best candidate ``best`` (an
+    identified base model's) is a linear effect (:data:`TAKEN_IN`), else ``unexplained``.
+
+    Within the floor a phase the identified model holds beyond its class's (:func:`absorbed_by`) is shown
+    with the answer (``FlowResult.moved``) but does not make it ``absorbed``: on the spent held-out sets
+    220000-240063 the five sessions it did were three clean ones, a rate limit and a dead zone, and every
+    linear single within the floor showed none. A class the network missed, which the refit corrects,
+    moves the phase as far as a lag taken in."""
     if named:
         return "named"
     if beyond:
         return "unexplained"
     if gap_before <= NONE_GAP[floors_of(loop, actuator)]:
-        return "absorbed" if absorbed else "none"
+        return "none"
     return "absorbed" if best in TAKEN_IN else "unexplained"
 
 
@@ -856,6 +877,10 @@ def analyse(
         cur = dataclasses.replace(cur, model=cur_model, effects=list(res.effects))
         if len(found) >= max_effects:
             break
+        if source == "identified" and sum(s.effect != "none" for s in steps) >= IDENTIFIED_SEARCHES:
+            log(f"no search {len(steps) + 1}: with an identified base model the search names "
+                f"{IDENTIFIED_SEARCHES} effect (what is left is mostly the model's own misfit)")
+            break
     gap_before = steps[0].gap_before if gap_without is None else gap_without
     final = ([s for s in steps if s.effect != "none"] or steps[:1])[-1]
     gap_after = final.gap_after
@@ -869,17 +894,19 @@ def analyse(
             residual[key] = sign
             residual["summary"] = sign["summary"] + "; " + residual["summary"]
             log(sign["summary"])
-    absorbed = absorbed_by(ident) if source == "identified" else None
+    moved = absorbed_by(ident) if source == "identified" else None
     best = best_candidate(steps[0].ranking) if source == "identified" else None
-    answer = decide(bool(found), gap_before, session.loop, absorbed, beyond=any(v is not None for v in beyond.values()),
+    answer = decide(bool(found), gap_before, session.loop, beyond=any(v is not None for v in beyond.values()),
                     actuator=ranged, best=best and best["effect"])
-    if answer == "absorbed" and gap_before > NONE_GAP[floors_of(session.loop, ranged)]:
+    absorbed = None
+    if answer == "absorbed":
         # above the floor: the linear best candidate says what the identified model took in
         absorbed = {**(absorbed_by(ident, any_move=True) or {"parameter": "tau", "moved_s": 0.0}),
                     "effects": [best["effect"]], "best": {"effect": best["effect"], "params": best["params"],
                                                           "gap_before": gap_before, "gap": best["gap"]}}  # fmt: skip
     return FlowResult(answer=answer, found=found, steps=steps, base=model, base_source=source, identification=ident,
-                      dropped=dropped, absorbed=absorbed, residual=residual, gap_before=gap_before,
+                      dropped=dropped, absorbed=absorbed, moved=moved if answer == "none" else None,
+                      residual=residual, gap_before=gap_before,
                       gap_after=gap_after, seconds=time.perf_counter() - t0, session=live,
                       by_level=[by_level.name] if by_level is not None else [],
                       from_samples=from_samples, sims_before=sims_without or steps[0].sims_before)  # fmt: skip
@@ -915,23 +942,18 @@ def format_flow(flow: FlowResult) -> str:
         )
     elif flow.answer == "absorbed":
         a = flow.absorbed
-        if "best" in a:
-            b = a["best"]
-            lines.append(f"answer: absorbed: the gap's best candidate is a linear {b['effect']} ("
-                         + ", ".join(f"{k} {v:.4g}" for k, v in b["params"].items())
-                         + f"; gap {b['gap_before']:.3f} -> {b['gap']:.3f}, too little to name it), which the "
-                         "identified linear model takes in"
-                         + (f"; its phase at the cycle moved +{a['moved_s'] * 1e3:.1f} ms beyond its class's"
-                            if a.get("moved_s", 0.0) > 0 else ""))  # fmt: skip
-        elif "refit" in a:
-            lines.append(f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the refit model's phase at "
-                         f"the cycle by +{a['moved_s'] * 1e3:.1f} ms of delay beyond its class's "
-                         f"(tau {a['identified'] * 1e3:.1f} ms, class {a['class'] * 1e3:.1f} ms)")  # fmt: skip
-        else:
-            lines.append(
-                f"answer: absorbed: a linear {'/'.join(a['effects'])} moved the identified {a['parameter']} "
-                f"to {a['identified'] * 1e3:.1f} ms (class {a['class'] * 1e3:.1f} ms, +{a['moved_s'] * 1e3:.1f} ms)"
-            )
+        b = a["best"]
+        lines.append(f"answer: absorbed: the gap's best candidate is a linear {b['effect']} ("
+                     + ", ".join(f"{k} {v:.4g}" for k, v in b["params"].items())
+                     + f"; gap {b['gap_before']:.3f} -> {b['gap']:.3f}, too little to name it), which the "
+                     "identified linear model takes in"
+                     + (f"; its phase at the cycle moved +{a['moved_s'] * 1e3:.1f} ms beyond its class's"
+                        if a.get("moved_s", 0.0) > 0 else ""))  # fmt: skip
+    elif flow.answer == "none" and flow.moved:
+        m = flow.moved
+        lines.append(f"answer: none (the identified model's phase at the cycle lies +{m['moved_s'] * 1e3:.1f} ms "
+                     f"of delay beyond its class's: a linear {'/'.join(m['effects'])} taken in, or a class the "
+                     "refit corrected; within the floor the runs do not tell them apart)")  # fmt: skip
     else:
         lines.append(f"answer: {flow.answer}")
     lines.append(

@@ -31,7 +31,15 @@ import numpy as np
 
 from uavsim.errors import UserError
 from uavsim.formats.session import ModelSpec, read_session
-from uavsim.gap.iterate import BEYOND, READ_FROM, TAKEN_IN, absorbed_by, analyse, decide
+from uavsim.gap.iterate import (
+    BEYOND,
+    IDENTIFIED_SEARCHES,
+    READ_FROM,
+    TAKEN_IN,
+    absorbed_by,
+    analyse,
+    decide,
+)
 
 CONDITIONS = ("true", "identified")
 
@@ -92,7 +100,8 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
                 "from_samples": [d["name"] for d in j["from_samples"]],
                 "read_from": {d["name"]: d["evidence"] for d in j["from_samples"]},
                 "gap_before": flow.gap_before, "gap_after": flow.gap_after,
-                "actuator": session.actuator is not None, "absorbed": flow.absorbed, "dropped": flow.dropped,
+                "actuator": session.actuator is not None, "absorbed": flow.absorbed, "moved": flow.moved,
+                "dropped": flow.dropped,
                 "residual": flow.residual["summary"],
                 **{k: flow.residual.get(k) for k in BEYOND}, "third_rise": flow.residual.get("third_rise"),
                 "steps": [(s["effect"], round(s["gap_before"], 3), round(s["gap_after"], 3)) for s in j["steps"]],
@@ -109,17 +118,31 @@ def one(folder: Path, models: str | None, condition: str, seed: int, nthread: in
 
 
 def redecide(r: dict) -> dict:
-    """A logged record with its answer decided again by ``uavsim.gap.iterate.decide`` (thresholds of today)."""
+    """A logged record with its answer decided again by ``uavsim.gap.iterate.decide`` (thresholds of today).
+
+    An identified record keeps the effects of its first :data:`uavsim.gap.iterate.IDENTIFIED_SEARCHES`
+    searches (and those read off the runs or named from the level), its gap after theirs.
+    """
     if r["answer"] == "error":
         return r
     ident = r.get("identification")
-    absorbed = absorbed_by(ident) if ident else None
+    found, gap_after = list(r["found"]), r["gap_after"]
+    searched = [s for s in r.get("steps") or [] if s[0] != "none"]
+    if ident and len(searched) > IDENTIFIED_SEARCHES:
+        later = {s[0] for s in searched[IDENTIFIED_SEARCHES:]}
+        found = [f for f in found if f["name"] not in later]
+        gap_after = searched[IDENTIFIED_SEARCHES - 1][2]
     # the first search's best candidate, as logged (an identified base model's only)
     best = next((e for e, _ in r.get("ranking") or [] if e != "none"), None) if ident else None
-    answer = decide(bool(r["found"]), r["gap_before"], r["loop"], absorbed,
-                    beyond=any(bool(r.get(k)) for k in BEYOND), actuator=bool(r.get("actuator")), best=best)
+    answer = decide(bool(found), r["gap_before"], r["loop"], beyond=any(bool(r.get(k)) for k in BEYOND),
+                    actuator=bool(r.get("actuator")), best=best)
+    moved = absorbed_by(ident) if ident else None
+    absorbed = r.get("absorbed") if answer == "absorbed" else None
+    if answer == "absorbed" and not (absorbed and "best" in absorbed):
+        absorbed = {**(absorbed_by(ident, any_move=True) or {"parameter": "tau", "moved_s": 0.0}), "effects": [best]}
     t = truth_of(r)
-    return {**r, "answer": answer, "absorbed": absorbed, **score(t, answer, r["found"], r["gap_before"], r["gap_after"])}
+    return {**r, "answer": answer, "found": found, "gap_after": gap_after, "absorbed": absorbed,
+            "moved": moved if answer == "none" else None, **score(t, answer, found, r["gap_before"], gap_after)}
 
 
 def truth_of(r: dict) -> dict:
