@@ -20,10 +20,10 @@
    exclude: :func:`uavsim.gap.workflow.ruled_out`); when the best removes at least
    :data:`NAME_SHARE` of the gap it is added to the model's effects and the
    search runs again on what is left, up to :data:`MAX_EFFECTS` effects
-   (:func:`accepts`; with an identified base model the search names
-   :data:`IDENTIFIED_SEARCHES`, beside those read off the runs or the level). An identified base model has its own misfit, which a
-   clean session shows (:data:`CLEAN_GAP`) and some candidates partly remove
-   (:data:`CLEAN_REMOVAL`): there a gap beyond :data:`NONE_GAP` names the
+   (:func:`accepts`; from an identified base model the search names
+   :data:`IDENTIFIED_SEARCHES`, beside those read off the runs or the level).
+   An identified base model has its own misfit, which a clean session shows
+   (:data:`CLEAN_GAP`) and some candidates partly remove (:data:`CLEAN_REMOVAL`): there a gap beyond :data:`NONE_GAP` names the
    candidate that removes :data:`NAME_EXCESS` of what lies beyond a clean
    session's gap, given back what it removes from a clean session
    (:func:`excess_share`). With an identified base model, a ``lag``, ``lowpass`` or
@@ -285,7 +285,8 @@ class FlowResult:
     found : list of EffectSpec
         The effects added, in order (empty unless ``named``).
     steps : list of GapResult
-        One per search (the last one's effect is ``none`` unless :data:`MAX_EFFECTS` was reached).
+        One per search (the last one's effect is ``none`` unless :data:`MAX_EFFECTS`, or from an
+        identified base model :data:`IDENTIFIED_SEARCHES`, was reached).
     base : ModelSpec
         The base model every search started from.
     base_source : str
